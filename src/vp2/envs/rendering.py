@@ -1,0 +1,215 @@
+"""Rendering: one :class:`RenderSpec` per environment, used for datasets, goals and planning.
+
+Software rendering (MuJoCo's EGL backend on Mesa) is the CPU bottleneck of the benchmark, and
+most of its cost is the shadow passes (each shadow-casting light re-draws every mesh into a
+shadow map) and multisampling. A :class:`RenderSpec` therefore fixes, besides the camera, the
+quality knobs that trade fidelity for speed; each environment documents the values it chose
+and their measured fidelity against :meth:`RenderSpec.full_quality` (``docs/rendering.md``).
+
+The :class:`Renderer` owns one MuJoCo GL context per (model, size) and is reused for every
+frame; creating a context per frame (as the ``robodesk`` package does) costs more than the
+rendering itself.
+"""
+
+from __future__ import annotations
+
+import atexit
+import copy
+import dataclasses
+import os
+import weakref
+from collections.abc import Sequence
+
+import numpy as np
+
+# MuJoCo picks its GL backend at import time; default to EGL (works headless on Mesa and NVIDIA).
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+
+import mujoco  # noqa: E402
+from PIL import Image  # noqa: E402
+
+
+@dataclasses.dataclass(frozen=True)
+class FreeCamera:
+    """A MuJoCo free camera looking at ``lookat`` from ``distance``/``azimuth``/``elevation``."""
+
+    distance: float
+    azimuth: float
+    elevation: float
+    lookat: tuple[float, float, float]
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderSpec:
+    """How an environment turns simulator state into an image.
+
+    Attributes:
+        camera: a :class:`FreeCamera` or the name of a camera in the model.
+        min_render_size: the scene is rendered at ``max(min_render_size, requested size)``
+            before cropping/resizing (RoboDesk renders at 120 and crops).
+        crop_box: optional ``(left, upper, right, lower)`` crop in pixels of a
+            ``crop_reference``-sized render; scaled to the actual render size.
+        crop_reference: the render size the crop box is expressed in.
+        shadow_size: shadow-map side in texels (MuJoCo's default is 4096).
+        shadow_lights: indices of lights that cast shadows; ``None`` keeps the model's own.
+        multisamples: MSAA samples of the offscreen buffer (MuJoCo's default is 4).
+        reflection: draw reflective materials' reflections.
+        skybox: draw the skybox.
+    """
+
+    camera: FreeCamera | str
+    min_render_size: int = 0
+    crop_box: tuple[float, float, float, float] | None = None
+    crop_reference: int | None = None
+    shadow_size: int = 4096
+    shadow_lights: tuple[int, ...] | None = None
+    multisamples: int = 4
+    reflection: bool = True
+    skybox: bool = True
+
+    def full_quality(self) -> RenderSpec:
+        """The same camera at MuJoCo's default quality: the fidelity reference."""
+        return dataclasses.replace(
+            self, shadow_size=4096, shadow_lights=None, multisamples=4, reflection=True,
+            skybox=True,
+        )
+
+    def render_size(self, height: int, width: int) -> tuple[int, int]:
+        """Size of the raw render for a requested output size."""
+        if self.crop_box is None:
+            return height, width
+        side = max(self.min_render_size, height, width)
+        return side, side
+
+
+def configure_model(model: mujoco.MjModel, spec: RenderSpec, height: int, width: int) -> None:
+    """Applies a spec's quality settings to a model (before creating a GL context for it)."""
+    model.vis.quality.shadowsize = spec.shadow_size
+    model.vis.quality.offsamples = spec.multisamples
+    model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
+    model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+    if spec.shadow_lights is not None:
+        cast = np.zeros(model.nlight, dtype=model.light_castshadow.dtype)
+        for i in spec.shadow_lights:
+            if not 0 <= i < model.nlight:
+                raise ValueError(f"shadow light index {i} out of range: model has {model.nlight}")
+            cast[i] = 1
+        model.light_castshadow[:] = cast
+
+
+# GL contexts must be freed before the interpreter tears EGL down, or it prints errors at exit.
+_LIVE_RENDERERS: weakref.WeakSet[Renderer] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_all_renderers() -> None:
+    for renderer in list(_LIVE_RENDERERS):
+        renderer.close()
+
+
+_DYNAMIC_VISUAL_FIELDS = ("geom_matid", "geom_rgba", "mat_texid", "mat_rgba")
+
+
+class Renderer:
+    """Renders one model's benchmark camera with a :class:`RenderSpec`.
+
+    The renderer works on its own copy of the model (quality settings must not leak into the
+    physics model) and keeps one GL context per raw render size.
+
+    Args:
+        model: the simulation model. Only its visual fields are copied and modified.
+        spec: the render specification.
+    """
+
+    def __init__(self, model: mujoco.MjModel, spec: RenderSpec):
+        self.spec = spec
+        self._model = model
+        self._contexts: dict[tuple[int, int], mujoco.Renderer] = {}
+        _LIVE_RENDERERS.add(self)
+        self._camera: mujoco.MjvCamera | str
+        if isinstance(spec.camera, FreeCamera):
+            cam = mujoco.MjvCamera()
+            cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+            cam.distance = spec.camera.distance
+            cam.azimuth = spec.camera.azimuth
+            cam.elevation = spec.camera.elevation
+            cam.lookat[:] = spec.camera.lookat
+            self._camera = cam
+        else:
+            if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, spec.camera) < 0:
+                raise ValueError(f"camera {spec.camera!r} is not in the model")
+            self._camera = spec.camera
+
+    def _context(self, height: int, width: int) -> mujoco.Renderer:
+        key = (height, width)
+        ctx = self._contexts.get(key)
+        if ctx is None:
+            # A private copy so that the quality knobs never touch the physics model.
+            model = copy.copy(self._model)  # a deep copy of the model's arrays
+            configure_model(model, self.spec, height, width)
+            ctx = mujoco.Renderer(model, height=height, width=width)
+            ctx.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.spec.reflection)
+            ctx.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = int(self.spec.skybox)
+            self._contexts[key] = ctx
+        return ctx
+
+    def render(self, data: mujoco.MjData, height: int = 64, width: int | None = None) -> np.ndarray:
+        """Renders ``data`` (whose kinematics must be current) as ``uint8 (height, width, 3)``."""
+        width = height if width is None else width
+        if height <= 0 or width <= 0:
+            raise ValueError(f"render size must be positive, got {height}x{width}")
+        rh, rw = self.spec.render_size(height, width)
+        ctx = self._context(rh, rw)
+        self._sync_visuals(ctx.model)
+        ctx.update_scene(data, camera=self._camera)
+        image = ctx.render()
+        if self.spec.crop_box is None:
+            return image.copy() if image.shape[:2] == (height, width) else _resize(image, height, width)
+        scale = rh / float(self.spec.crop_reference or rh)
+        box = tuple(c * scale for c in self.spec.crop_box)
+        pil = Image.fromarray(image).crop(box)
+        return np.asarray(pil.resize((width, height), resample=Image.Resampling.LANCZOS))
+
+    def _sync_visuals(self, render_model: mujoco.MjModel) -> None:
+        # Environments may re-texture objects per instance by switching materials at run time;
+        # the GL context already holds every texture, so only these small arrays need copying.
+        for field in _DYNAMIC_VISUAL_FIELDS:
+            getattr(render_model, field)[:] = getattr(self._model, field)
+
+    def close(self) -> None:
+        for ctx in self._contexts.values():
+            ctx.close()
+        self._contexts.clear()
+
+
+def _resize(image: np.ndarray, height: int, width: int) -> np.ndarray:
+    pil = Image.fromarray(image)
+    return np.asarray(pil.resize((width, height), resample=Image.Resampling.LANCZOS))
+
+
+def mean_abs_error(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean absolute pixel error of two uint8 images, in units of 1/255."""
+    return float(np.abs(a.astype(np.float64) - b.astype(np.float64)).mean())
+
+
+def contact_sheet(
+    images: Sequence[np.ndarray], labels: Sequence[str], columns: int = 4, scale: int = 3
+) -> np.ndarray:
+    """Tiles labelled images into one ``uint8`` RGB image (for looking at, not for data)."""
+    from PIL import ImageDraw
+
+    if len(images) != len(labels):
+        raise ValueError(f"{len(images)} images but {len(labels)} labels")
+    h, w = images[0].shape[:2]
+    cell_w, cell_h, pad = w * scale, h * scale, 14
+    rows = (len(images) + columns - 1) // columns
+    sheet = Image.new("RGB", (columns * cell_w, rows * (cell_h + pad)), (255, 255, 255))
+    draw = ImageDraw.Draw(sheet)
+    for i, (img, label) in enumerate(zip(images, labels, strict=True)):
+        r, c = divmod(i, columns)
+        x, y = c * cell_w, r * (cell_h + pad)
+        tile = Image.fromarray(img).resize((cell_w, cell_h), resample=Image.Resampling.NEAREST)
+        sheet.paste(tile, (x, y + pad))
+        draw.text((x + 2, y + 1), label, fill=(0, 0, 0))
+    return np.asarray(sheet)
