@@ -88,7 +88,7 @@ class Env(abc.ABC):
         """Sets the goal that ``step`` reports ``info["success"]`` against."""
         self._goal_state = None if goal_state is None else np.asarray(goal_state, np.float64)
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (a no-op is right for envs without a renderer)
         """Releases renderer resources. Safe to call twice."""
 
     def __enter__(self) -> Env:

@@ -1,0 +1,1 @@
+"""Data: scripted policies, trajectory collection, datasets and the task suite."""

@@ -1,0 +1,256 @@
+"""Scripted data collection: N trajectories per task, in parallel, resumable.
+
+Trajectory ``i`` of a dataset is fully determined by ``(seed, its data stream, its index
+in that stream)``: which worker ran it, how many workers there were, or whether the run was
+interrupted and resumed never changes a trajectory. Indices interleave the streams (index
+``i`` belongs to stream ``i % num_streams``), so a dataset's first N trajectories are
+balanced across tasks, and a larger collection with the same seed starts with a smaller one's
+trajectories.
+
+The work is cut into chunks of ``chunk_size`` trajectories; each chunk becomes one shard,
+written once and atomically by the collecting process. Re-running the same command skips
+the shards that exist and are valid, so a killed collection resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+import zlib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from vp2.data import storage
+from vp2.data.policies import data_noise_sigma, make_data_env, make_policy, stream_names
+from vp2.envs.base import Env
+from vp2.utils.io import remove_stale_temporaries, write_json_atomic
+from vp2.utils.parallel import default_workers, imap_unordered
+
+log = logging.getLogger(__name__)
+
+#: Control steps per trajectory (36 frames: the initial one and one per action).
+HORIZON = 35
+
+
+@dataclasses.dataclass(frozen=True)
+class CollectionConfig:
+    """Everything that determines a dataset's content.
+
+    Attributes:
+        env: ``"robodesk"`` or ``"tabletop"``.
+        streams: data streams to collect (``None``: the environment's default streams:
+            every RoboDesk task, or the tabletop random-object pushing stream).
+        trajectories_per_stream: trajectories collected for each stream.
+        image_size: side of the stored observations.
+        seed: base seed of the whole dataset.
+        horizon: actions per trajectory.
+        chunk_size: trajectories per shard (the unit of work and of resumption).
+        valid_every: every ``valid_every``-th trajectory goes to the validation split.
+    """
+
+    env: str
+    trajectories_per_stream: int
+    streams: tuple[str, ...] | None = None
+    image_size: int = 64
+    seed: int = 0
+    horizon: int = HORIZON
+    chunk_size: int = 10
+    valid_every: int = 10
+
+    def resolved_streams(self) -> tuple[str, ...]:
+        return tuple(self.streams) if self.streams else stream_names(self.env)
+
+    def validate(self) -> None:
+        if self.trajectories_per_stream <= 0:
+            raise ValueError(f"trajectories per stream must be > 0, got {self.trajectories_per_stream}")
+        if self.image_size <= 0 or self.horizon <= 0 or self.chunk_size <= 0:
+            raise ValueError("image_size, horizon and chunk_size must be positive")
+        known = stream_names(self.env)
+        for s in self.resolved_streams():
+            if s not in known:
+                raise ValueError(f"unknown data stream {s!r} for env {self.env!r}; known: {', '.join(known)}")
+
+    @property
+    def total(self) -> int:
+        return self.trajectories_per_stream * len(self.resolved_streams())
+
+    def to_json(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["streams"] = list(self.resolved_streams())
+        return d
+
+
+def trajectory_seed(seed: int, stream: str, stream_index: int) -> int:
+    """The seed of one trajectory: depends only on the dataset seed, its stream and index."""
+    ss = np.random.SeedSequence([seed, zlib.crc32(stream.encode()), stream_index])
+    return int(ss.generate_state(1, np.uint32)[0])
+
+
+def chunk_plan(config: CollectionConfig) -> list[dict[str, Any]]:
+    """The shards of a collection: ``[{"chunk": c, "first": i0, "count": n}, ...]``."""
+    total = config.total
+    return [
+        {"chunk": c, "first": start, "count": min(config.chunk_size, total - start)}
+        for c, start in enumerate(range(0, total, config.chunk_size))
+    ]
+
+
+def rollout(
+    env: Env,
+    stream: str,
+    index: int,
+    seed: int,
+    horizon: int,
+    image_size: int,
+    noise_sigma: float | Sequence[float],
+) -> storage.Trajectory:
+    """Runs one noisy scripted trajectory from a seeded initial state and records it."""
+    reset_seed, policy_seed, noise_seed = np.random.SeedSequence(seed).generate_state(3)
+    env.reset(seed=int(reset_seed))
+    policy = make_policy(env, stream, np.random.default_rng(policy_seed), np.random.default_rng(noise_seed), noise_sigma)
+    policy.reset()
+    goal = policy.goal_state()
+    env.set_goal(goal)
+
+    states = [env.get_state()]
+    images = [env.render(image_size)]
+    success = [env.is_success(goal)]
+    actions = []
+    for _ in range(horizon):
+        action = policy.act()
+        obs, _, _, _, info = env.step(action)
+        actions.append(env.check_action(action))
+        states.append(env.get_state())
+        images.append(obs if obs is not None and obs.shape[0] == image_size else env.render(image_size))
+        success.append(bool(info["success"]))
+    sigma = np.asarray(noise_sigma, np.float64)
+    return storage.Trajectory(
+        task=stream,
+        index=index,
+        seed=seed,
+        actions=np.asarray(actions, np.float32),
+        states=np.asarray(states, np.float64),
+        images=np.asarray(images, np.uint8),
+        success=np.asarray(success, bool),
+        env_meta=env.serialize(),
+        noise_sigma=float(sigma.max()),
+    )
+
+
+# One environment per data stream per worker process, built on first use.
+_WORKER_ENVS: dict[tuple[str, int], Env] = {}
+
+
+def _collect_chunk(job: tuple[dict[str, Any], dict[str, Any]]) -> list[storage.Trajectory]:
+    config_json, chunk = job
+    config = CollectionConfig(**{**config_json, "streams": tuple(config_json["streams"])})
+    streams = config.resolved_streams()
+    trajectories = []
+    for index in range(chunk["first"], chunk["first"] + chunk["count"]):
+        stream = streams[index % len(streams)]
+        stream_index = index // len(streams)
+        key = (stream, config.image_size)
+        if key not in _WORKER_ENVS:
+            _WORKER_ENVS[key] = make_data_env(stream, observation_size=config.image_size)
+        trajectories.append(
+            rollout(
+                _WORKER_ENVS[key],
+                stream,
+                index,
+                trajectory_seed(config.seed, stream, stream_index),
+                config.horizon,
+                config.image_size,
+                data_noise_sigma(stream, stream_index),
+            )
+        )
+    return trajectories
+
+
+def _check_existing(root: Path, config: CollectionConfig) -> dict[str, Any] | None:
+    path = root / storage.MANIFEST
+    if not path.exists():
+        if root.exists() and any(root.iterdir()):
+            raise FileExistsError(
+                f"{root} exists, is not empty and is not a vp2 dataset; choose another --out"
+            )
+        return None
+    manifest = storage.load_manifest(root)
+    if manifest["config"] != config.to_json():
+        diffs = {
+            k: (manifest["config"].get(k), v)
+            for k, v in config.to_json().items()
+            if manifest["config"].get(k) != v
+        }
+        detail = ", ".join(f"{k}: existing {a!r} vs requested {b!r}" for k, (a, b) in diffs.items())
+        raise FileExistsError(
+            f"{root} holds a dataset collected with different settings ({detail}). "
+            "Use another --out, or delete it to start over."
+        )
+    return manifest
+
+
+def collect(
+    config: CollectionConfig,
+    out: str | Path,
+    workers: int | None = None,
+    progress: bool = True,
+) -> Path:
+    """Collects (or completes) a dataset; returns its directory.
+
+    Args:
+        config: what to collect.
+        out: dataset directory. If it holds a dataset with the same config, only the missing
+            shards are collected (resume); with another config, ``FileExistsError``.
+        workers: worker processes (default: one per core; ``1`` runs in this process).
+        progress: show a progress bar with trajectories/s.
+    """
+    config.validate()
+    root = Path(out)
+    _check_existing(root, config)
+    root.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(root / storage.SHARD_DIR) if (root / storage.SHARD_DIR).exists() else None
+    plan = chunk_plan(config)
+    manifest = {
+        "format": storage.FORMAT,
+        "config": config.to_json(),
+        "chunks": plan,
+        "complete": False,
+    }
+    write_json_atomic(root / storage.MANIFEST, manifest)
+
+    todo = []
+    for chunk in plan:
+        path = storage.shard_path(root, chunk["chunk"])
+        if path.exists():
+            try:
+                if len(storage.read_shard_index(path)) == chunk["count"]:
+                    continue
+            except storage.DatasetError as exc:
+                log.warning("regenerating %s", exc)
+            path.unlink()
+        todo.append(chunk)
+
+    workers = default_workers() if workers is None else workers
+    done_before = config.total - sum(c["count"] for c in todo)
+    config_json = config.to_json()
+    start = time.perf_counter()
+    with tqdm(
+        total=config.total, initial=done_before, unit="traj", desc=f"collect {config.env}",
+        disable=not progress, smoothing=0.1,
+    ) as bar:
+        env_meta = {"env": config.env, "collection": config_json}
+        jobs = ((config_json, chunk) for chunk in todo)
+        for (_, chunk), trajectories in imap_unordered(_collect_chunk, jobs, workers=min(workers, max(1, len(todo)))):
+            storage.write_shard(
+                storage.shard_path(root, chunk["chunk"]), trajectories, env_meta, config.valid_every
+            )
+            bar.update(len(trajectories))
+    manifest["complete"] = True
+    manifest["collected_seconds"] = round(time.perf_counter() - start, 3)
+    write_json_atomic(root / storage.MANIFEST, manifest)
+    return root

@@ -1,0 +1,304 @@
+"""The task suite: 310 fixed task instances (SPEC §2), generated with fixed seeds and shipped.
+
+A :class:`TaskInstance` is an initial simulator state, a goal state and its 64×64 goal image,
+the scripted actions that reach the goal from the initial state, and the environment
+metadata. The goal is a state the task's noise-free scripted policy actually reached from
+that initial state (so it is reachable within the horizon) and that satisfies the task's
+success criterion; instances whose initial state already satisfies it are rejected.
+
+Generation is deterministic: attempt ``k`` of a task uses a seed derived from
+``(suite seed, task, k)``, attempts are accepted in order, and the file is written with fixed
+zip timestamps, so regenerating with the same seeds reproduces the shipped file bit for bit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import zipfile
+import zlib
+from collections.abc import Iterator, Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from vp2.envs import ROBODESK_TASKS, TABLETOP_TASKS, TASK_NAMES, make_env, split_name
+from vp2.envs.base import Env
+from vp2.utils.io import atomic_path
+from vp2.utils.parallel import default_workers, imap_unordered
+
+#: Instances per task category (SPEC §2): 30 per RoboDesk task, 25 per tabletop category.
+SUITE_COUNTS: dict[str, int] = {
+    **{f"robodesk/{t}": 30 for t in ROBODESK_TASKS},
+    **{f"tabletop/{t}": 25 for t in TABLETOP_TASKS},
+}
+SUITE_SEED = 2023
+GOAL_IMAGE_SIZE = 64
+HORIZON = 35
+SUITE_FORMAT = "vp2-task-suite/1"
+SHIPPED_SUITE = "task_suite.npz"
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskInstance:
+    """One task instance of the benchmark."""
+
+    task: str  # registered task category, e.g. "robodesk/push_red"
+    index: int  # index within its category
+    seed: int  # the seed it was generated from
+    init_state: np.ndarray  # (S,) float64
+    goal_state: np.ndarray  # (S,) float64
+    goal_image: np.ndarray  # (64, 64, 3) uint8
+    actions: np.ndarray  # (k, A) float64: scripted actions from init_state to goal_state
+    env_meta: dict[str, Any]
+
+    @property
+    def key(self) -> str:
+        return f"{self.task}#{self.index}"
+
+    def make_env(self, **overrides: Any) -> Env:
+        """An environment rebuilt from the instance's metadata, reset to its initial state."""
+        from vp2.envs import make_env_from_metadata
+
+        env = make_env_from_metadata(self.env_meta, **overrides)
+        env.reset_to(self.init_state)
+        env.set_goal(self.goal_state)
+        return env
+
+
+class TaskSuite:
+    """An ordered collection of task instances, grouped by task category."""
+
+    def __init__(self, instances: Sequence[TaskInstance], seed: int = SUITE_SEED):
+        self.instances = list(instances)
+        self.seed = seed
+
+    def __len__(self) -> int:
+        return len(self.instances)
+
+    def __iter__(self) -> Iterator[TaskInstance]:
+        return iter(self.instances)
+
+    @property
+    def tasks(self) -> list[str]:
+        return list(dict.fromkeys(i.task for i in self.instances))
+
+    def for_task(self, task: str) -> list[TaskInstance]:
+        split_name(task)
+        return [i for i in self.instances if i.task == task]
+
+    def get(self, task: str, index: int) -> TaskInstance:
+        for inst in self.instances:
+            if inst.task == task and inst.index == index:
+                return inst
+        raise KeyError(f"no instance {task}#{index} in the suite")
+
+    # ---- file format: a zip of .npy arrays and one JSON, with fixed timestamps ------------
+    def save(self, path: str | Path) -> None:
+        """Writes the suite deterministically (same content -> same bytes)."""
+        meta = {"format": SUITE_FORMAT, "seed": self.seed, "tasks": {}}
+        arrays: dict[str, np.ndarray] = {}
+        for t_id, task in enumerate(self.tasks):
+            insts = self.for_task(task)
+            max_len = max(len(i.actions) for i in insts)
+            adim = insts[0].actions.shape[1]
+            actions = np.full((len(insts), max_len, adim), np.nan)
+            for j, inst in enumerate(insts):
+                actions[j, : len(inst.actions)] = inst.actions
+            prefix = f"t{t_id:02d}"
+            arrays[f"{prefix}_init_states"] = np.stack([i.init_state for i in insts])
+            arrays[f"{prefix}_goal_states"] = np.stack([i.goal_state for i in insts])
+            arrays[f"{prefix}_goal_images"] = np.stack([i.goal_image for i in insts])
+            arrays[f"{prefix}_actions"] = actions
+            meta["tasks"][task] = {
+                "prefix": prefix,
+                "indices": [i.index for i in insts],
+                "seeds": [i.seed for i in insts],
+                "num_actions": [len(i.actions) for i in insts],
+                "env_meta": [i.env_meta for i in insts],
+            }
+        with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+            for name in sorted(arrays):
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, np.ascontiguousarray(arrays[name]), allow_pickle=False)
+                zf.writestr(_zipinfo(f"{name}.npy"), buf.getvalue())
+            zf.writestr(_zipinfo("meta.json"), json.dumps(meta, sort_keys=True, indent=1))
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> TaskSuite:
+        """Loads a suite file; ``None`` loads the suite shipped with the package."""
+        if path is None:
+            ref = resources.files("vp2") / "assets" / SHIPPED_SUITE
+            if not ref.is_file():
+                raise FileNotFoundError(
+                    f"the shipped task suite is missing from the package ({ref}); regenerate "
+                    "it with `vp2 tasks generate`"
+                )
+            with resources.as_file(ref) as p:
+                return cls.load(p)
+        try:
+            with zipfile.ZipFile(path) as zf:
+                meta = json.loads(zf.read("meta.json"))
+            with np.load(path, allow_pickle=False) as z:
+                if meta.get("format") != SUITE_FORMAT:
+                    raise ValueError(f"format {meta.get('format')!r}, expected {SUITE_FORMAT!r}")
+                instances = []
+                for task, tm in meta["tasks"].items():
+                    p = tm["prefix"]
+                    init, goal = z[f"{p}_init_states"], z[f"{p}_goal_states"]
+                    images, actions = z[f"{p}_goal_images"], z[f"{p}_actions"]
+                    for j, idx in enumerate(tm["indices"]):
+                        instances.append(
+                            TaskInstance(
+                                task=task,
+                                index=idx,
+                                seed=tm["seeds"][j],
+                                init_state=init[j],
+                                goal_state=goal[j],
+                                goal_image=images[j],
+                                actions=actions[j, : tm["num_actions"][j]],
+                                env_meta=tm["env_meta"][j],
+                            )
+                        )
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
+            raise ValueError(f"{path}: not a readable vp2 task suite ({exc})") from exc
+        return cls(instances, seed=meta["seed"])
+
+
+def _zipinfo(name: str) -> zipfile.ZipInfo:
+    info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+    info.compress_type = zipfile.ZIP_DEFLATED
+    info.external_attr = 0o644 << 16
+    return info
+
+
+def instance_seed(suite_seed: int, task: str, attempt: int) -> int:
+    ss = np.random.SeedSequence([suite_seed, zlib.crc32(task.encode()), attempt])
+    return int(ss.generate_state(1, np.uint32)[0])
+
+
+# One environment per task per worker process.
+_ENVS: dict[str, Env] = {}
+
+
+def _env(task: str) -> Env:
+    if task not in _ENVS:
+        _ENVS[task] = make_env(task, observation_size=None)
+    return _ENVS[task]
+
+
+def generate_instance(task: str, seed: int, index: int = -1) -> TaskInstance | None:
+    """Tries to make one instance from ``seed``; ``None`` if it is rejected.
+
+    Rejected when the initial state already succeeds, or when the noise-free scripted
+    policy does not reach success within the horizon.
+    """
+    from vp2.data.policies import make_task_policy
+
+    env = _env(task)
+    reset_seed, policy_seed = np.random.SeedSequence(seed).generate_state(2)
+    env.reset(seed=int(reset_seed))
+    init_state = env.get_state()
+    policy = make_task_policy(env, np.random.default_rng(policy_seed))
+    policy.reset()
+    target = policy.goal_state()
+    if env.is_success(target):
+        return None
+    actions = []
+    for _ in range(HORIZON):
+        action = env.check_action(policy.act())
+        env.step(action)
+        actions.append(action)
+        if env.is_success(target):
+            break
+    else:
+        return None
+    # One more scripted step lets a falling block land or a pushed object settle; it is
+    # kept only if the state still succeeds.
+    if len(actions) < HORIZON:
+        before = env.get_state()
+        action = env.check_action(policy.act())
+        env.step(action)
+        if env.is_success(target):
+            actions.append(action)
+        else:
+            env.reset_to(before)
+    goal_state = env.get_state()
+    goal_image = env.render(GOAL_IMAGE_SIZE)
+    env.reset_to(init_state)
+    env_meta = env.serialize()
+    return TaskInstance(
+        task=task,
+        index=index,
+        seed=seed,
+        init_state=init_state,
+        goal_state=goal_state,
+        goal_image=goal_image,
+        actions=np.asarray(actions, np.float64),
+        env_meta=env_meta,
+    )
+
+
+def _attempt(job: tuple[str, int, int]) -> TaskInstance | None:
+    task, suite_seed, attempt = job
+    return generate_instance(task, instance_seed(suite_seed, task, attempt))
+
+
+def generate_suite(
+    counts: dict[str, int] | None = None,
+    seed: int = SUITE_SEED,
+    workers: int | None = None,
+    progress: bool = True,
+    max_attempts_factor: int = 10,
+) -> TaskSuite:
+    """Generates a task suite (by default the canonical one, SPEC §2).
+
+    Attempts are made in batches in parallel, but accepted strictly in attempt order, so the
+    result does not depend on ``workers``.
+    """
+    counts = dict(SUITE_COUNTS if counts is None else counts)
+    for task in counts:
+        split_name(task)
+    workers = default_workers() if workers is None else workers
+    order = sorted(counts, key=TASK_NAMES.index)
+    accepted: dict[str, list[TaskInstance]] = {t: [] for t in order}
+    next_attempt = dict.fromkeys(order, 0)
+    with tqdm(total=sum(counts.values()), unit="inst", desc="task suite", disable=not progress) as bar:
+        # Rounds: every task still short of instances gets a block of attempts (sized by its
+        # shortfall only, never by `workers`, so the result is the same for any pool size).
+        while any(len(accepted[t]) < counts[t] for t in order):
+            jobs = []
+            for task in order:
+                short = counts[task] - len(accepted[task])
+                if short <= 0:
+                    continue
+                if next_attempt[task] >= max_attempts_factor * counts[task]:
+                    raise RuntimeError(
+                        f"{task}: only {len(accepted[task])} of {counts[task]} instances after "
+                        f"{next_attempt[task]} attempts; the scripted policy fails too often"
+                    )
+                block = short + short // 4 + 1
+                jobs += [(task, seed, k) for k in range(next_attempt[task], next_attempt[task] + block)]
+                next_attempt[task] += block
+            results = {(job[0], job[2]): inst for job, inst in imap_unordered(_attempt, jobs, workers)}
+            for task, _, k in jobs:  # accept strictly in attempt order
+                inst = results[(task, k)]
+                if inst is not None and len(accepted[task]) < counts[task]:
+                    accepted[task].append(dataclasses.replace(inst, index=len(accepted[task])))
+                    bar.update(1)
+    instances = [inst for task in order for inst in accepted[task]]
+    return TaskSuite(instances, seed=seed)
+
+
+def replay_instance(instance: TaskInstance) -> tuple[bool, bool]:
+    """Replays an instance's scripted actions; returns (initially successful, finally successful)."""
+    env = _env(instance.task)
+    env.reset_to(instance.init_state)
+    initially = env.is_success(instance.goal_state)
+    for action in instance.actions:
+        env.step(action)
+    return initially, env.is_success(instance.goal_state)
