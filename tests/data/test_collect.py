@@ -1,0 +1,112 @@
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from vp2.data import storage
+from vp2.data.collect import CollectionConfig, chunk_plan, collect, rollout, trajectory_seed
+from vp2.data.policies import data_noise_sigma, make_data_env
+from tests.data.conftest import TINY
+
+
+def test_chunk_plan_covers_every_index_once():
+    plan = chunk_plan(TINY)
+    covered = [i for c in plan for i in range(c["first"], c["first"] + c["count"])]
+    assert covered == list(range(TINY.total)) and TINY.total == 6
+    assert [c["count"] for c in plan] == [2, 2, 2]
+
+
+def test_tiny_dataset_layout_and_content(tiny_dataset):
+    manifest = storage.load_manifest(tiny_dataset)
+    assert manifest["complete"] is True
+    records = storage.dataset_index(tiny_dataset)
+    assert [r.name for r in records] == [f"demo_{i}" for i in range(6)]
+    # Streams interleave: even indices push_red, odd open_drawer.
+    assert [r.task for r in records] == ["robodesk/push_red", "robodesk/open_drawer"] * 3
+    assert [r.split for r in records] == ["train", "train", "valid"] * 2
+    traj = next(storage.read_trajectories(storage.shard_path(tiny_dataset, 0)))
+    assert traj.actions.shape == (35, 5) and traj.actions.dtype == np.float32
+    assert traj.images.shape == (36, 32, 32, 3) and traj.images.dtype == np.uint8
+    assert traj.states.shape[0] == 36 and traj.success.shape == (36,)
+    assert np.all(np.abs(traj.actions) <= 1)
+    assert traj.env_meta["name"] == "robodesk/push_red"
+    assert traj.noise_sigma == pytest.approx(0.1)  # even stream index: sigma 0.1
+
+
+def test_stored_states_replay_exactly(tiny_dataset):
+    traj = next(storage.read_trajectories(storage.shard_path(tiny_dataset, 1)))
+    env = make_data_env(traj.task, observation_size=32)
+    env.reset_to(traj.states[0])
+    for t, action in enumerate(traj.actions):
+        obs, _, _, _, info = env.step(action)
+        np.testing.assert_array_equal(env.get_state(), traj.states[t + 1])
+        np.testing.assert_array_equal(obs, traj.images[t + 1])
+        assert info["success"] == traj.success[t + 1]
+
+
+def test_trajectory_depends_only_on_its_seed(tiny_dataset):
+    """Re-running one trajectory by itself reproduces what the collector stored."""
+    stored = {t.index: t for t in storage.read_trajectories(storage.shard_path(tiny_dataset, 1))}
+    index = 3  # stream 1 (open_drawer), stream index 1
+    stream = TINY.resolved_streams()[index % 2]
+    env = make_data_env(stream, observation_size=32)
+    fresh = rollout(env, stream, index, trajectory_seed(TINY.seed, stream, 1), 35, 32,
+                    data_noise_sigma(stream, 1))
+    np.testing.assert_array_equal(fresh.states, stored[index].states)
+    np.testing.assert_array_equal(fresh.images, stored[index].images)
+    assert fresh.noise_sigma == pytest.approx(0.2)
+
+
+def test_rerun_is_a_no_op_and_other_settings_are_refused(tiny_dataset):
+    before = {p.name: p.stat().st_mtime_ns for p in (tiny_dataset / "shards").iterdir()}
+    collect(TINY, tiny_dataset, workers=1, progress=False)
+    after = {p.name: p.stat().st_mtime_ns for p in (tiny_dataset / "shards").iterdir()}
+    assert before == after
+    other = CollectionConfig(**{**TINY.__dict__, "image_size": 48})
+    with pytest.raises(FileExistsError, match="image_size: existing 32 vs requested 48"):
+        collect(other, tiny_dataset, workers=1, progress=False)
+
+
+def test_corrupted_shard_is_named(tiny_dataset, tmp_path):
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(tiny_dataset, copy)
+    shard = storage.shard_path(copy, 1)
+    data = shard.read_bytes()
+    shard.write_bytes(data[: len(data) // 2])
+    with pytest.raises(storage.DatasetError, match=str(shard)):
+        storage.dataset_index(copy)
+    # Re-running the collection repairs it.
+    collect(TINY, copy, workers=1, progress=False)
+    assert len(storage.dataset_index(copy)) == 6
+
+
+def test_sigkill_half_way_then_resume(tmp_path):
+    """Kill a collection with SIGKILL after its first shard; re-running completes it exactly."""
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "vp2.cli", "collect", "robodesk", "--streams", "robodesk/push_blue",
+           "-n", "6", "--chunk-size", "2", "--image-size", "32", "--workers", "1", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=os.environ)
+    deadline = time.time() + 300
+    while not storage.shard_path(out, 0).exists():
+        assert proc.poll() is None and time.time() < deadline, "collection ended before its first shard"
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["complete"] is False
+    with pytest.raises(storage.DatasetError, match="incomplete"):
+        storage.dataset_index(out)
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    records = storage.dataset_index(out)
+    assert sorted(int(r.name[5:]) for r in records) == list(range(6))
+    assert not list((out / "shards").glob(".*.tmp"))
+    for shard in sorted((out / "shards").glob("*.hdf5")):
+        for traj in storage.read_trajectories(shard):
+            assert traj.images.shape == (36, 32, 32, 3) and np.all(np.isfinite(traj.states))

@@ -1,0 +1,78 @@
+import numpy as np
+import pytest
+
+from vp2.data import suite as suite_lib
+from vp2.data.suite import SUITE_COUNTS, TaskSuite, generate_instance, replay_instance
+from vp2.envs import TASK_NAMES
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return TaskSuite.load()
+
+
+def test_shipped_suite_has_the_canonical_counts(shipped):
+    assert len(shipped) == 310
+    assert shipped.tasks == list(TASK_NAMES)
+    for task in TASK_NAMES:
+        insts = shipped.for_task(task)
+        assert len(insts) == SUITE_COUNTS[task]
+        assert [i.index for i in insts] == list(range(len(insts)))
+        for inst in insts:
+            assert inst.goal_image.shape == (64, 64, 3) and inst.goal_image.dtype == np.uint8
+            assert inst.init_state.shape == inst.goal_state.shape
+            assert 1 <= len(inst.actions) <= 35 and np.all(np.abs(inst.actions) <= 1)
+            assert inst.env_meta["name"] == task
+        assert len({i.seed for i in insts}) == len(insts)
+
+
+@pytest.mark.parametrize("task", TASK_NAMES)
+def test_first_instance_regenerates_bit_for_bit(shipped, task):
+    inst = shipped.for_task(task)[0]
+    fresh = generate_instance(task, inst.seed, index=0)
+    assert fresh is not None
+    for field in ("init_state", "goal_state", "goal_image", "actions"):
+        np.testing.assert_array_equal(getattr(fresh, field), getattr(inst, field), err_msg=field)
+    assert fresh.env_meta == inst.env_meta
+
+
+def test_save_is_deterministic_and_round_trips(shipped, tmp_path):
+    small = TaskSuite([shipped.for_task(t)[0] for t in shipped.tasks], seed=shipped.seed)
+    a, b = tmp_path / "a.npz", tmp_path / "b.npz"
+    small.save(a)
+    small.save(b)
+    assert a.read_bytes() == b.read_bytes()
+    loaded = TaskSuite.load(a)
+    for x, y in zip(loaded, small, strict=True):
+        assert x.key == y.key
+        np.testing.assert_array_equal(x.goal_image, y.goal_image)
+        np.testing.assert_array_equal(x.actions, y.actions)
+
+
+def test_bad_suite_file_is_reported(tmp_path):
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="not a readable vp2 task suite"):
+        TaskSuite.load(bad)
+
+
+@pytest.mark.slow
+def test_every_instance_replays_to_success(shipped):
+    """~310 replays of up to 35 steps without rendering (a few minutes on 2 cores)."""
+    failures = []
+    for inst in shipped:
+        initially, finally_ = replay_instance(inst)
+        if initially or not finally_:
+            failures.append((inst.key, initially, finally_))
+    assert not failures
+
+
+@pytest.mark.slow
+def test_full_regeneration_reproduces_the_shipped_file(tmp_path):
+    from importlib import resources
+
+    suite = suite_lib.generate_suite(workers=2, progress=False)
+    out = tmp_path / "suite.npz"
+    suite.save(out)
+    shipped_bytes = (resources.files("vp2") / "assets" / suite_lib.SHIPPED_SUITE).read_bytes()
+    assert out.read_bytes() == shipped_bytes
