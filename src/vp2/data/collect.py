@@ -122,9 +122,10 @@ def rollout(
     success = [env.is_success(goal)]
     actions = []
     for _ in range(horizon):
-        action = policy.act()
+        # Executed as stored: float32 (what datasets hold), so replays are exact.
+        action = env.check_action(policy.act()).astype(np.float32)
         obs, _, _, _, info = env.step(action)
-        actions.append(env.check_action(action))
+        actions.append(action)
         states.append(env.get_state())
         images.append(obs if obs is not None and obs.shape[0] == image_size else env.render(image_size))
         success.append(bool(info["success"]))

@@ -108,6 +108,20 @@ def _close_all_renderers() -> None:
         renderer.close()
 
 
+_EXIT_HOOK_AFTER_GL = False
+
+
+def _register_exit_hook_after_gl() -> None:
+    # MuJoCo's EGL backend registers eglTerminate with atexit when it creates its first context,
+    # i.e. after this module's hook; atexit runs hooks last-in-first-out, so the contexts would
+    # be destroyed after the display is gone (EGL_NOT_INITIALIZED errors at exit). Registering
+    # the hook again after the first context makes it run before eglTerminate.
+    global _EXIT_HOOK_AFTER_GL
+    if not _EXIT_HOOK_AFTER_GL:
+        _EXIT_HOOK_AFTER_GL = True
+        atexit.register(_close_all_renderers)
+
+
 _DYNAMIC_VISUAL_FIELDS = ("geom_matid", "geom_rgba", "mat_texid", "mat_rgba")
 
 
@@ -149,6 +163,7 @@ class Renderer:
             model = copy.copy(self._model)  # a deep copy of the model's arrays
             configure_model(model, self.spec, height, width)
             ctx = mujoco.Renderer(model, height=height, width=width)
+            _register_exit_hook_after_gl()
             ctx.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.spec.reflection)
             ctx.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = int(self.spec.skybox)
             self._contexts[key] = ctx

@@ -1,0 +1,394 @@
+"""Tabletop pushing (4 task categories): a robosuite Panda arm pushing one of four objects.
+
+SPEC §1.2. The scene is a robosuite table arena with a Panda arm driven by robosuite's
+operational-space *position* controller (orientation held) and gripper controller, and four
+objects: a large cube, a small cube, a cylinder and a sphere. Every reset draws a texture for
+each object from a fixed set of 13 (:data:`TEXTURE_NAMES`), non-overlapping object positions in
+front of the arm, and a little arm joint noise, all from the environment's own generator.
+
+Action (4-D, in ``[-1, 1]``; outside values are clipped, see :meth:`Env.check_action`):
+``(dx, dy, dz, gripper)``. ``dx, dy, dz`` move the end-effector goal by up to 5 cm per control
+step in the robot base frame (robosuite's ``OSC_POSITION`` default scaling); ``gripper`` > 0
+closes and < 0 opens the gripper by one increment of robosuite's ``PandaGripper`` per step.
+A control step is 0.2 s of simulated time (5 Hz control, 100 physics steps of 2 ms; robosuite's
+default of 20 Hz is too slow for the 35-step pushes of SPEC §3, see ``docs/tabletop.md``).
+
+Success (SPEC §1.2): every object is within 5 cm of its position in the goal state::
+
+    max_k || p_k - p_k^goal || < 0.05
+
+State vector (:meth:`TabletopEnv.get_state`), ``float64``::
+
+    [ mj_getState(mjSTATE_INTEGRATION) | texture ids (4) | gripper command (2) | OSC q0 (7) ]
+
+The first block is MuJoCo's full integration state (time, qpos, qvel, warm start, ctrl, ...);
+the texture ids index :data:`TEXTURE_NAMES`; the last 9 numbers are the controller state that
+robosuite keeps between steps (see :class:`vp2.envs._tabletop_sim.LeanStepper`). Restoring a
+state and replaying actions is bit-identical, also in a fresh process.
+
+Speed: a control step does not go through robosuite's ``env.step`` but through
+:class:`~vp2.envs._tabletop_sim.LeanStepper`, which performs the same arithmetic without
+robosuite's per-physics-step bookkeeping (bit-identical results, several times faster); images
+come from the shared :class:`~vp2.envs.rendering.Renderer` with :data:`RENDER_SPEC`. See
+``docs/tabletop.md`` for the measurements.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from vp2.envs import TABLETOP_TASKS
+from vp2.envs._tabletop_sim import (
+    CAMERA_NAME,
+    OBJECT_FOOTPRINT,
+    OBJECT_NAMES,
+    OBJECT_REST_HEIGHT,
+    TABLE_FULL_SIZE,
+    TABLE_TOP_Z,
+    TEXTURE_NAMES,
+    LeanStepper,
+    TabletopWorld,
+)
+from vp2.envs.base import Env
+from vp2.envs.rendering import Renderer, RenderSpec
+
+__all__ = [
+    "ARM_INIT_NOISE",
+    "OBJECT_NAMES",
+    "PLACEMENT_REGION",
+    "RENDER_SPEC",
+    "SUCCESS_THRESHOLD",
+    "TEXTURE_NAMES",
+    "TabletopEnv",
+]
+
+#: The benchmark camera's render specification. The quality knobs were chosen by measurement
+#: (``benchmarks/bench_tabletop.py``, ``docs/tabletop.md``): the arena's only light casts no
+#: shadow, so no shadow pass is drawn (a small shadow map saves GL memory); the floor's 1%
+#: reflectance would re-render the whole scene for a barely visible effect; multisampling costs
+#: more than half of the render time on a software rasteriser. Mean absolute error against
+#: ``RENDER_SPEC.full_quality()`` at 64x64: 5.5/255 on average, 6.5/255 at most over 60 varied
+#: states (budget 8/255), at about a sixth of the full-quality render time.
+RENDER_SPEC = RenderSpec(
+    camera=CAMERA_NAME,
+    shadow_size=256,
+    shadow_lights=(),
+    multisamples=0,
+    reflection=False,
+    skybox=False,
+)
+
+#: Success threshold on the largest object displacement from the goal (metres), SPEC §1.2.
+SUCCESS_THRESHOLD = 0.05
+
+#: Region of the table (world x, y ranges, metres) where objects start: in front of the arm
+#: (its base is at x = -0.56), within comfortable reach at table height, and shifted to the
+#: right (-y) because the scripted pushes go left (directions in [0, pi]) and must stay on the
+#: table.
+PLACEMENT_REGION: tuple[tuple[float, float], tuple[float, float]] = ((-0.22, 0.1), (-0.28, 0.12))
+#: Minimum free gap between two objects' footprints at reset (metres).
+PLACEMENT_GAP = 0.03
+#: Standard deviation of the Gaussian noise added to the arm's initial joint angles (radians),
+#: robosuite's own default for the Panda.
+ARM_INIT_NOISE = 0.02
+
+# robosuite's default Panda pose and the gripper's open finger positions.
+_ARM_INIT_QPOS = np.array(
+    [0.0, np.pi / 16.0, 0.0, -np.pi / 2.0 - np.pi / 3.0, 0.0, np.pi - 0.2, np.pi / 4]
+)
+_GRIPPER_INIT_QPOS = np.array([0.020833, -0.020833])
+_STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
+# Layout facts of the model (checked against the built model in __init__), so that object
+# positions can be read out of a state vector without building an environment.
+_NQ = 37
+_OBJECT_QPOS_ADR = (9, 16, 23, 30)
+_ARM_QPOS_ADR = tuple(range(7))
+_GRIPPER_QPOS_ADR = (7, 8)
+_QPOS_OFFSET = 1  # the integration state starts with the simulation time
+
+
+class TabletopEnv(Env):
+    """One tabletop pushing task category (see the module docstring for the details).
+
+    Args:
+        task: one of ``push_large_cube``, ``push_small_cube``, ``push_cylinder``,
+            ``push_sphere``. The task only names which object the task suite and the
+            scripted policy push; dynamics, rendering and the success criterion are shared.
+        seed: seed of the environment's generator (initial states of ``reset()``).
+        observation_size: side of the square RGB observation returned by ``reset``/``step``;
+            ``None`` returns no observation (faster when only states are needed).
+    """
+
+    action_dim = 4
+    #: Index of the object the task pushes (into :data:`OBJECT_NAMES`), set per instance.
+    target_object: int
+
+    def __init__(self, task: str, seed: int | None = None, observation_size: int | None = 64):
+        if task not in TABLETOP_TASKS:
+            raise ValueError(f"unknown tabletop task {task!r}; known: {', '.join(TABLETOP_TASKS)}")
+        if observation_size is not None and int(observation_size) <= 0:
+            raise ValueError(f"observation_size must be positive or None, got {observation_size}")
+        self.task = task
+        self.name = f"tabletop/{task}"
+        self.seed = seed
+        self.observation_size = None if observation_size is None else int(observation_size)
+        self.target_object = OBJECT_NAMES.index(task.removeprefix("push_"))
+        self._rng = np.random.default_rng(seed)
+        self._goal_state: np.ndarray | None = None
+
+        self._world = TabletopWorld()
+        self._stepper = LeanStepper(self._world)
+        self._model: mujoco.MjModel = self._world.sim.model._model
+        self._data: mujoco.MjData = self._world.sim.data._data
+        self._check_layout()
+        self._n_integration = mujoco.mj_stateSize(self._model, _STATE_SPEC)
+        self._textures = np.arange(len(OBJECT_NAMES))
+        self._renderer: Renderer | None = None
+        # A valid, deterministic state before the first reset (textures 0-3, a fixed layout).
+        self._set_initial_state(
+            arm_qpos=_ARM_INIT_QPOS,
+            object_xy=np.array([[-0.1, -0.15], [-0.1, 0.15], [0.05, -0.1], [0.05, 0.1]]),
+            object_yaw=np.zeros(len(OBJECT_NAMES)),
+            textures=np.arange(len(OBJECT_NAMES)),
+        )
+
+    def _check_layout(self) -> None:
+        world, model = self._world, self._model
+        layout_ok = (
+            model.nq == _NQ
+            and tuple(int(a) for a in world.object_qpos_adr) == _OBJECT_QPOS_ADR
+            and tuple(self._stepper.osc.qpos_index) == _ARM_QPOS_ADR
+        )
+        if not layout_ok:
+            raise RuntimeError(
+                "the robosuite model's joint layout differs from the one vp2 was written for "
+                f"(nq={model.nq}, object qpos addresses {world.object_qpos_adr.tolist()}); "
+                "check the installed robosuite version against pyproject.toml"
+            )
+
+    # ---- lifecycle -------------------------------------------------------------------------
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray | None, dict[str, Any]]:
+        """Draws textures, object placements and arm noise from the environment's generator.
+
+        Args:
+            seed: reseeds the generator first (the same seed gives the same initial state).
+            options: unused (accepted for Gymnasium compatibility).
+        """
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        rng = self._rng
+        textures = rng.choice(len(TEXTURE_NAMES), size=len(OBJECT_NAMES), replace=False)
+        arm_qpos = _ARM_INIT_QPOS + ARM_INIT_NOISE * rng.standard_normal(7)
+        object_xy = self._sample_placement(rng)
+        object_yaw = rng.uniform(0.0, 2.0 * np.pi, size=len(OBJECT_NAMES))
+        self._set_initial_state(arm_qpos, object_xy, object_yaw, textures)
+        obs = self._observation()
+        return obs, {"textures": self.texture_names(), "success": self.is_success(self._goal_state)}
+
+    @staticmethod
+    def _sample_placement(rng: np.random.Generator) -> np.ndarray:
+        """Non-overlapping object positions in :data:`PLACEMENT_REGION`, shape ``(4, 2)``."""
+        (x0, x1), (y0, y1) = PLACEMENT_REGION
+        radii = np.array([OBJECT_FOOTPRINT[name] for name in OBJECT_NAMES])
+        for _ in range(1000):
+            xy = np.stack(
+                [rng.uniform(x0, x1, len(OBJECT_NAMES)), rng.uniform(y0, y1, len(OBJECT_NAMES))],
+                axis=1,
+            )
+            dist = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
+            need = radii[:, None] + radii[None] + PLACEMENT_GAP
+            np.fill_diagonal(need, 0.0)
+            if np.all(dist >= need):
+                return xy
+        raise RuntimeError("could not place the objects without overlap")  # pragma: no cover
+
+    def _set_initial_state(
+        self,
+        arm_qpos: np.ndarray,
+        object_xy: np.ndarray,
+        object_yaw: np.ndarray,
+        textures: np.ndarray,
+    ) -> None:
+        m, d = self._model, self._data
+        mujoco.mj_resetData(m, d)
+        d.qpos[list(_ARM_QPOS_ADR)] = arm_qpos
+        d.qpos[list(_GRIPPER_QPOS_ADR)] = _GRIPPER_INIT_QPOS
+        for k, name in enumerate(OBJECT_NAMES):
+            adr = _OBJECT_QPOS_ADR[k]
+            d.qpos[adr : adr + 3] = (
+                object_xy[k, 0],
+                object_xy[k, 1],
+                TABLE_TOP_Z + OBJECT_REST_HEIGHT[name],
+            )
+            d.qpos[adr + 3 : adr + 7] = (
+                np.cos(object_yaw[k] / 2),
+                0.0,
+                0.0,
+                np.sin(object_yaw[k] / 2),
+            )
+        mujoco.mj_forward(m, d)
+        self._set_textures(np.asarray(textures))
+        self._stepper.reset_controllers(np.array(arm_qpos, np.float64))
+
+    def _set_textures(self, textures: np.ndarray) -> None:
+        textures = np.asarray(textures).astype(np.int64)
+        if (
+            textures.shape != (len(OBJECT_NAMES),)
+            or np.any(textures < 0)
+            or np.any(textures >= len(TEXTURE_NAMES))
+        ):
+            raise ValueError(
+                f"texture ids must be {len(OBJECT_NAMES)} integers in [0, {len(TEXTURE_NAMES)}), got {textures.tolist()}"
+            )
+        self._textures = textures.copy()
+        self._world.set_textures(self._textures)
+
+    def get_state(self) -> np.ndarray:
+        """The complete state (see the module docstring for its layout), a copy."""
+        sim_state = np.empty(self._n_integration)
+        mujoco.mj_getState(self._model, self._data, sim_state, _STATE_SPEC)
+        return np.concatenate(
+            [sim_state, self._textures.astype(np.float64), self._stepper.controller_state()]
+        )
+
+    @property
+    def state_size(self) -> int:
+        """Length of :meth:`get_state` vectors."""
+        return self._n_integration + len(OBJECT_NAMES) + LeanStepper.CONTROLLER_STATE_SIZE
+
+    def reset_to(self, state: np.ndarray) -> np.ndarray | None:
+        """Restores a state from :meth:`get_state` (textures and controller state included)."""
+        state = np.asarray(state, dtype=np.float64)
+        if state.shape != (self.state_size,) or not np.all(np.isfinite(state)):
+            raise ValueError(
+                f"{self.name}: state must be a finite float vector of shape ({self.state_size},) "
+                f"from TabletopEnv.get_state(), got shape {state.shape}"
+            )
+        n = self._n_integration
+        mujoco.mj_setState(self._model, self._data, state[:n], _STATE_SPEC)
+        textures = state[n : n + len(OBJECT_NAMES)]
+        if np.any(textures != np.round(textures)):
+            raise ValueError(f"{self.name}: texture ids in the state are not integers: {textures}")
+        self._set_textures(textures.astype(np.int64))
+        self._stepper.set_controller_state(state[n + len(OBJECT_NAMES) :])
+        mujoco.mj_forward(self._model, self._data)
+        return self._observation()
+
+    def step(
+        self, action: np.ndarray
+    ) -> tuple[np.ndarray | None, float, bool, bool, dict[str, Any]]:
+        """One control step (0.2 s). ``info["success"]`` is judged against :meth:`set_goal`."""
+        self._stepper.step(self.check_action(action))
+        success = self.is_success(self._goal_state)
+        return self._observation(), float(success), False, False, {"success": success}
+
+    # ---- observation -----------------------------------------------------------------------
+    def _observation(self) -> np.ndarray | None:
+        if self.observation_size is None:
+            return None
+        return self.render(self.observation_size)
+
+    def render(self, height: int = 64, width: int | None = None) -> np.ndarray:
+        """Renders the benchmark camera with :data:`RENDER_SPEC`, ``uint8 (height, width, 3)``."""
+        if self._renderer is None:
+            self._renderer = Renderer(self._model, RENDER_SPEC)
+        # After mj_step the kinematics lag the integrated qpos by one physics step; recompute
+        # them so that an image is a function of the state alone (re-rendering a saved state
+        # gives the same image). The next mj_step1 recomputes them anyway, so the dynamics
+        # are untouched.
+        mujoco.mj_kinematics(self._model, self._data)
+        mujoco.mj_camlight(self._model, self._data)
+        return self._renderer.render(self._data, height, width)
+
+    # ---- success ---------------------------------------------------------------------------
+    def object_positions(self) -> np.ndarray:
+        """Current object positions ``(4, 3)`` in the order of :data:`OBJECT_NAMES`."""
+        qpos = self._data.qpos
+        return np.stack([qpos[a : a + 3] for a in _OBJECT_QPOS_ADR]).copy()
+
+    def object_quaternions(self) -> np.ndarray:
+        """Current object orientations ``(4, 4)`` as (w, x, y, z) quaternions."""
+        qpos = self._data.qpos
+        return np.stack([qpos[a + 3 : a + 7] for a in _OBJECT_QPOS_ADR]).copy()
+
+    @staticmethod
+    def object_positions_from_state(state: np.ndarray) -> np.ndarray:
+        """Object positions ``(4, 3)`` stored in a state vector from :meth:`get_state`."""
+        state = np.asarray(state, np.float64)
+        return np.stack([state[_QPOS_OFFSET + a : _QPOS_OFFSET + a + 3] for a in _OBJECT_QPOS_ADR])
+
+    @staticmethod
+    def with_object_positions(state: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        """A copy of ``state`` with the object positions ``(4, 3)`` replaced.
+
+        Used to express a goal ("these objects at these places") as a state vector that
+        :meth:`is_success` and :meth:`set_goal` accept; the rest of the state is kept as is.
+        """
+        out = np.array(state, dtype=np.float64, copy=True)
+        positions = np.asarray(positions, np.float64)
+        if positions.shape != (len(OBJECT_NAMES), 3):
+            raise ValueError(
+                f"positions must have shape ({len(OBJECT_NAMES)}, 3), got {positions.shape}"
+            )
+        for k, a in enumerate(_OBJECT_QPOS_ADR):
+            out[_QPOS_OFFSET + a : _QPOS_OFFSET + a + 3] = positions[k]
+        return out
+
+    @staticmethod
+    def goal_distance(positions: np.ndarray, goal_state: np.ndarray) -> float:
+        """Largest distance of an object in ``positions`` ``(4, 3)`` from its goal position."""
+        goal = TabletopEnv.object_positions_from_state(goal_state)
+        return float(np.max(np.linalg.norm(np.asarray(positions) - goal, axis=-1)))
+
+    def is_success(self, goal_state: np.ndarray | None = None) -> bool:
+        """All objects within :data:`SUCCESS_THRESHOLD` of their goal positions (``False`` if no goal)."""
+        if goal_state is None:
+            return False
+        return self.goal_distance(self.object_positions(), goal_state) < SUCCESS_THRESHOLD
+
+    # ---- end-effector (for scripted policies) ----------------------------------------------
+    def end_effector_position(self) -> np.ndarray:
+        """World position of the gripper's grip site (the point the controller moves), ``(3,)``."""
+        mujoco.mj_kinematics(self._model, self._data)
+        return self._data.site_xpos[self._stepper._ref_site].copy()
+
+    def base_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """Position ``(3,)`` and rotation ``(3, 3)`` of the frame actions are expressed in."""
+        mujoco.mj_kinematics(self._model, self._data)
+        site = self._stepper._center_site
+        return self._data.site_xpos[site].copy(), self._data.site_xmat[site].reshape(3, 3).copy()
+
+    # ---- metadata --------------------------------------------------------------------------
+    def texture_names(self) -> dict[str, str]:
+        """The current texture of every object, ``{object name: texture name}``."""
+        return {
+            obj: TEXTURE_NAMES[int(t)] for obj, t in zip(OBJECT_NAMES, self._textures, strict=True)
+        }
+
+    def serialize(self) -> dict[str, Any]:
+        """``{"name", "kwargs"}`` for :func:`vp2.envs.make_env_from_metadata`, plus the textures.
+
+        The texture assignment is part of the state vector (so ``reset_to`` restores it);
+        ``"textures"`` and ``"texture_set"`` are informational (what the ids mean).
+        """
+        return {
+            "name": self.name,
+            "kwargs": {"seed": self.seed, "observation_size": self.observation_size},
+            "textures": self.texture_names(),
+            "texture_set": list(TEXTURE_NAMES),
+        }
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    @property
+    def table_half_extent(self) -> tuple[float, float]:
+        """Half sizes (x, y) of the table top, metres; the table is centred at the origin."""
+        return TABLE_FULL_SIZE[0] / 2, TABLE_FULL_SIZE[1] / 2

@@ -1,0 +1,222 @@
+"""Tabletop environment: seeding, state round trips, determinism, textures, success, metadata."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import mujoco
+import numpy as np
+import pytest
+
+from vp2.envs import make_env_from_metadata
+from vp2.envs._tabletop_sim import LeanStepper, TabletopWorld
+from vp2.envs.tabletop import (
+    OBJECT_NAMES,
+    PLACEMENT_REGION,
+    SUCCESS_THRESHOLD,
+    TEXTURE_NAMES,
+    TabletopEnv,
+)
+
+_INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
+@pytest.fixture(scope="module")
+def env():
+    with TabletopEnv("push_cylinder", seed=0, observation_size=32) as e:
+        yield e
+
+
+def _actions(n: int, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(-1, 1, size=(n, 4))
+
+
+def _rollout(env: TabletopEnv, start: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    env.reset_to(start)
+    states = []
+    for a in actions:
+        env.step(a)
+        states.append(env.get_state())
+    return np.array(states)
+
+
+def test_reset_seeding(env):
+    env.reset(seed=11)
+    a = env.get_state()
+    env.reset(seed=12)
+    b = env.get_state()
+    env.reset(seed=11)
+    np.testing.assert_array_equal(env.get_state(), a)
+    assert not np.array_equal(a, b)
+    # Without a seed, reset continues the generator seeded at construction.
+    with (
+        TabletopEnv("push_sphere", seed=5, observation_size=None) as e1,
+        TabletopEnv("push_sphere", seed=5, observation_size=None) as e2,
+    ):
+        for _ in range(2):
+            e1.reset()
+            e2.reset()
+            np.testing.assert_array_equal(e1.get_state(), e2.get_state())
+
+
+def test_initial_states_are_valid(env):
+    (x0, x1), (y0, y1) = PLACEMENT_REGION
+    for seed in range(5):
+        env.reset(seed=seed)
+        pos = env.object_positions()
+        assert np.all((pos[:, 0] >= x0) & (pos[:, 0] <= x1) & (pos[:, 1] >= y0) & (pos[:, 1] <= y1))
+        gaps = np.linalg.norm(pos[:, None, :2] - pos[None, :, :2], axis=-1) + np.eye(4)
+        assert gaps.min() > 0.05, "objects overlap at reset"
+        # Objects rest on the table: a zero action leaves them where they are.
+        env.step(np.zeros(4))
+        np.testing.assert_allclose(env.object_positions()[:, :2], pos[:, :2], atol=1e-3)
+
+
+def test_textures_drawn_and_restored(env):
+    seen = set()
+    for seed in range(6):
+        env.reset(seed=seed)
+        names = env.texture_names()
+        assert list(names) == list(OBJECT_NAMES)
+        assert len(set(names.values())) == 4 and set(names.values()) <= set(TEXTURE_NAMES)
+        seen.update(names.values())
+    assert len(seen) > 6, "textures should vary across resets"
+
+    env.reset(seed=1)
+    state, image, names = env.get_state(), env.render(32), env.texture_names()
+    env.reset(seed=2)
+    assert env.texture_names() != names
+    obs = env.reset_to(state)
+    assert env.texture_names() == names
+    np.testing.assert_array_equal(obs, image)
+    assert env.serialize()["textures"] == names
+
+
+def test_reset_to_round_trip_and_render_from_state(env):
+    env.reset(seed=3)
+    for a in _actions(3):
+        obs, *_ = env.step(a)
+    state = env.get_state()
+    env.reset(seed=4)
+    np.testing.assert_array_equal(env.reset_to(state), obs)  # an image is a function of the state
+    np.testing.assert_array_equal(env.get_state(), state)
+    np.testing.assert_array_equal(
+        TabletopEnv.object_positions_from_state(state), env.object_positions()
+    )
+    with pytest.raises(ValueError, match="shape"):
+        env.reset_to(state[:-1])
+
+
+def test_determinism_same_process(env):
+    env.reset(seed=21)
+    start = env.get_state()
+    actions = _actions(35, seed=1)
+    np.testing.assert_array_equal(_rollout(env, start, actions), _rollout(env, start, actions))
+
+
+def test_determinism_fresh_process(env, tmp_path):
+    env.reset(seed=22)
+    start = env.get_state()
+    actions = _actions(35, seed=2)
+    expected = _rollout(env, start, actions)
+    np.save(tmp_path / "start.npy", start)
+    np.save(tmp_path / "actions.npy", actions)
+    script = textwrap.dedent(
+        f"""
+        import numpy as np
+        from vp2.envs.tabletop import TabletopEnv
+        env = TabletopEnv("push_cylinder", seed=123, observation_size=None)
+        env.reset_to(np.load({str(tmp_path / "start.npy")!r}))
+        out = []
+        for a in np.load({str(tmp_path / "actions.npy")!r}):
+            env.step(a)
+            out.append(env.get_state())
+        np.save({str(tmp_path / "fresh.npy")!r}, np.array(out))
+        """
+    )
+    subprocess.run(
+        [sys.executable, "-c", script], check=True, env=dict(os.environ), capture_output=True
+    )
+    np.testing.assert_array_equal(np.load(tmp_path / "fresh.npy"), expected)
+
+
+def test_lean_step_matches_robosuite_step(env):
+    """The fast step is bit-identical to robosuite's own env.step from the same state."""
+    env.reset(seed=31)
+    world = TabletopWorld()
+    stepper = LeanStepper(world)
+    state = env.get_state()
+    n = env._n_integration
+    mujoco.mj_setState(world.sim.model._model, world.sim.data._data, state[:n], _INTEGRATION)
+    stepper.set_controller_state(state[n + len(OBJECT_NAMES) :])
+    # Gripper flips sign to exercise the gripper controller's accumulated command.
+    actions = np.array([[0.8, -0.5, -1.0, 1.0], [0.3, 0.9, 0.2, -1.0], [-1.0, 0.1, 0.5, 1.0]])
+    for a in actions:
+        env.step(a)
+        world.step(a.copy())
+        ref = np.empty(n)
+        mujoco.mj_getState(world.sim.model._model, world.sim.data._data, ref, _INTEGRATION)
+        np.testing.assert_array_equal(env.get_state()[:n], ref)
+    np.testing.assert_array_equal(env.get_state()[n + 4 :], stepper.controller_state())
+
+
+def test_bad_actions_and_clipping(env):
+    env.reset(seed=5)
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(3))
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.array([0.0, np.nan, 0.0, 0.0]))
+    start = env.get_state()
+    big = np.array([3.0, -2.0, 1.5, -7.0])
+    clipped = np.clip(big, -1, 1)
+    np.testing.assert_array_equal(
+        _rollout(env, start, big[None]), _rollout(env, start, clipped[None])
+    )
+
+
+def test_is_success_on_hand_made_goals(env):
+    env.reset(seed=6)
+    state = env.get_state()
+    pos = env.object_positions()
+    assert env.is_success(state)
+    assert not env.is_success(None)
+    near, far = pos.copy(), pos.copy()
+    near[2, 0] += SUCCESS_THRESHOLD * 0.9
+    far[2, 0] += SUCCESS_THRESHOLD * 1.1
+    assert env.is_success(TabletopEnv.with_object_positions(state, near))
+    assert not env.is_success(TabletopEnv.with_object_positions(state, far))
+    # Every object counts, not only the task's own.
+    other = pos.copy()
+    other[0, 1] -= SUCCESS_THRESHOLD * 1.1
+    assert not env.is_success(TabletopEnv.with_object_positions(state, other))
+
+    env.set_goal(TabletopEnv.with_object_positions(state, far))
+    *_, info = env.step(np.zeros(4))
+    assert info["success"] is False
+    env.set_goal(state)
+    _, reward, *_, info = env.step(np.zeros(4))
+    assert info["success"] is True and reward == 1.0
+    env.set_goal(None)
+
+
+def test_serialize_round_trip(env):
+    env.reset(seed=8)
+    meta = env.serialize()
+    json.dumps(meta)
+    assert meta["name"] == "tabletop/push_cylinder"
+    assert meta["texture_set"] == list(TEXTURE_NAMES)
+    with make_env_from_metadata(meta) as rebuilt:
+        assert isinstance(rebuilt, TabletopEnv) and rebuilt.name == env.name
+        assert rebuilt.observation_size == env.observation_size
+        rebuilt.reset(seed=8)
+        np.testing.assert_array_equal(rebuilt.get_state(), env.get_state())
+        assert rebuilt.texture_names() == env.texture_names()
+
+
+def test_unknown_task_is_rejected():
+    with pytest.raises(ValueError, match="unknown tabletop task"):
+        TabletopEnv("push_teapot")
