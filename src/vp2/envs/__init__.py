@@ -18,9 +18,15 @@ tabletop  push_large_cube, push_small_cube, push_cylinder, push_sphere
 from __future__ import annotations
 
 import importlib
+import os
 from typing import Any
 
 from vp2.envs.base import Env
+
+# MuJoCo picks its GL backend when it is first imported, which may be by any env module (e.g.
+# vp2.envs._ik), not only vp2.envs.rendering: default to EGL here, before any of them loads.
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 ROBODESK_TASKS: tuple[str, ...] = (
     "push_red",
