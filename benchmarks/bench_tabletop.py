@@ -11,6 +11,9 @@ Sections (``--section``, default ``all``):
 * ``fidelity``: mean absolute pixel error of ``RENDER_SPEC`` against
   ``RENDER_SPEC.full_quality()`` at 64x64 over many varied states (random initial states plus
   random actions), and the render time of each.
+* ``visibility``: visible pixels of each object at 64x64 (segmentation renders of the
+  benchmark camera) at reset and after 12 policy steps, and the share of objects that are
+  less than a quarter visible (under the hand).
 * ``dynamics``: our lean step against robosuite's ``env.step`` from the same states with the
   same actions: the largest absolute difference of the full MuJoCo state (0 = bit-identical).
 * ``policy``: success of the noise-free scripted pushing policy per task category within 35
@@ -190,6 +193,50 @@ def bench_fidelity(count: int) -> dict:
     }
 
 
+def bench_visibility(states: int) -> dict:
+    """Visible pixels of each object at 64x64, from segmentation renders of the benchmark camera.
+
+    States ``reset(seed=100000 + i)`` and the same after 12 steps of the scripted policy;
+    visual geoms only. ``hidden_share``: objects with less than a quarter of their median
+    visible pixels (mostly under the hand).
+    """
+    env = TabletopEnv("push_large_cube", seed=0, observation_size=None)
+    model, data = env._model, env._data
+    renderer = mujoco.Renderer(model, 64, 64)
+    renderer.enable_segmentation_rendering()
+    option = mujoco.MjvOption()
+    option.geomgroup[:] = 0
+    option.geomgroup[1] = 1  # robosuite's visual geoms
+    bodies = [model.body(f"{name}_main").id for name in OBJECT_NAMES]
+    counts: dict[str, list[list[int]]] = {"reset": [], "after_12_policy_steps": []}
+    for i in range(states):
+        env.reset(seed=100_000 + i)
+        policy = make_tabletop_policy(env, np.random.default_rng(i))
+        for phase, steps in (("reset", 0), ("after_12_policy_steps", 12)):
+            for _ in range(steps):
+                env.step(policy.act())
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_camlight(model, data)
+            renderer.update_scene(data, camera=RENDER_SPEC.camera, scene_option=option)
+            geom = renderer.render()[..., 0]
+            body = np.where(geom >= 0, model.geom_bodyid[np.clip(geom, 0, model.ngeom - 1)], -1)
+            counts[phase].append([int((body == b).sum()) for b in bodies])
+    renderer.close()
+    env.close()
+    out: dict = {"states": states}
+    for phase, c in counts.items():
+        c = np.array(c)
+        median = np.median(c, axis=0)
+        out[phase] = {
+            "median_pixels": dict(zip(OBJECT_NAMES, median.tolist(), strict=True)),
+            "median_width_px": dict(
+                zip(OBJECT_NAMES, np.sqrt(median).round(2).tolist(), strict=True)
+            ),
+            "hidden_share": float(np.mean(c < 0.25 * median)),
+        }
+    return out
+
+
 def bench_dynamics(episodes: int, steps: int) -> dict:
     env = TabletopEnv("push_large_cube", seed=0, observation_size=None)
     world = TabletopWorld()
@@ -260,7 +307,9 @@ def bench_policy(episodes: int, workers: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument(
-        "--section", choices=["all", "speed", "fidelity", "dynamics", "policy"], default="all"
+        "--section",
+        choices=["all", "speed", "fidelity", "visibility", "dynamics", "policy"],
+        default="all",
     )
     parser.add_argument("--steps", type=int, default=30, help="timed control steps (speed)")
     parser.add_argument("--states", type=int, default=50, help="varied states (fidelity)")
@@ -275,7 +324,9 @@ def main() -> None:
         "mujoco_gl": os.environ.get("MUJOCO_GL"),
     }
     sections = (
-        ["speed", "fidelity", "dynamics", "policy"] if args.section == "all" else [args.section]
+        ["speed", "fidelity", "visibility", "dynamics", "policy"]
+        if args.section == "all"
+        else [args.section]
     )
     print(
         f"# bench_tabletop  {report['date']}  {report['machine']}  MUJOCO_GL={report['mujoco_gl']}"
@@ -310,6 +361,19 @@ def main() -> None:
         )
         for name, c in r["candidates"].items():
             print(f"| {name} | {c['mae_mean']:.2f} | {c['mae_max']:.2f} | {c['render_ms']:.2f} |")
+    if "visibility" in sections:
+        r = report["visibility"] = bench_visibility(min(args.states, 40))
+        print(f"\n## Visible object pixels at 64x64 ({r['states']} states)\n")
+        print(
+            "| when | " + " | ".join(OBJECT_NAMES) + " | < 25% visible |\n|---|---|---|---|---|---|"
+        )
+        for phase in ("reset", "after_12_policy_steps"):
+            c = r[phase]
+            cells = [
+                f"{c['median_pixels'][o]:g} px ({c['median_width_px'][o]:.1f} across)"
+                for o in OBJECT_NAMES
+            ]
+            print(f"| {phase} | " + " | ".join(cells) + f" | {c['hidden_share']:.1%} |")
     if "dynamics" in sections:
         r = report["dynamics"] = bench_dynamics(episodes=4, steps=35)
         print(f"\n## Dynamics vs robosuite env.step ({r['episodes']} x {r['steps']} steps)\n")

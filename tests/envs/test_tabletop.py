@@ -1,4 +1,5 @@
-"""Tabletop environment: seeding, state round trips, determinism, textures, success, metadata."""
+"""Tabletop environment: seeding, state round trips, determinism, textures, success, metadata,
+camera framing."""
 
 from __future__ import annotations
 
@@ -12,11 +13,13 @@ import mujoco
 import numpy as np
 import pytest
 
+from vp2.data.policies.tabletop import TARGET_REGION
 from vp2.envs import make_env_from_metadata
-from vp2.envs._tabletop_sim import LeanStepper, TabletopWorld
+from vp2.envs._tabletop_sim import TABLE_TOP_Z, LeanStepper, TabletopWorld
 from vp2.envs.tabletop import (
     OBJECT_NAMES,
     PLACEMENT_REGION,
+    RENDER_SPEC,
     SUCCESS_THRESHOLD,
     TEXTURE_NAMES,
     TabletopEnv,
@@ -220,3 +223,48 @@ def test_serialize_round_trip(env):
 def test_unknown_task_is_rejected():
     with pytest.raises(ValueError, match="unknown tabletop task"):
         TabletopEnv("push_teapot")
+
+
+def _project(env: TabletopEnv, points: np.ndarray, size: int = 64) -> np.ndarray:
+    """Pixel coordinates (u right, v down) of world points in the benchmark camera."""
+    m, d = env._model, env._data
+    mujoco.mj_kinematics(m, d)
+    cam = m.camera(RENDER_SPEC.camera).id
+    pos, rot = d.cam_xpos[cam], d.cam_xmat[cam].reshape(3, 3)
+    local = (np.asarray(points) - pos) @ rot  # camera frame: x right, y up, looking along -z
+    f = size / 2 / np.tan(np.radians(m.cam_fovy[cam]) / 2)
+    return np.stack(
+        [size / 2 + f * local[:, 0] / -local[:, 2], size / 2 - f * local[:, 1] / -local[:, 2]], 1
+    )
+
+
+def test_camera_sees_the_whole_table_and_large_objects(env):
+    (x0, x1), (y0, y1) = env.table_bounds
+    corners = np.array([[x, y, TABLE_TOP_Z] for x in (x0, x1) for y in (y0, y1)])
+    uv = _project(env, corners)
+    assert np.all((uv >= 0) & (uv <= 64)), uv
+    # The table fills most of the image: a 5 cm object anywhere in the placement region is
+    # at least 4.5 pixels across (its top face, seen from above) at 64x64.
+    (px0, px1), (py0, py1) = PLACEMENT_REGION
+    for x in (px0, px1):
+        for y in (py0, py1):
+            ends = _project(env, np.array([[x, y - 0.025, 0.85], [x, y + 0.025, 0.85]]))
+            assert np.linalg.norm(ends[1] - ends[0]) >= 4.5
+
+
+def test_regions_lie_on_the_table(env):
+    (x0, x1), (y0, y1) = env.table_bounds
+    for (rx0, rx1), (ry0, ry1) in (PLACEMENT_REGION, TARGET_REGION):
+        assert x0 + 0.05 <= rx0 < rx1 <= x1 - 0.05
+        assert y0 + 0.05 <= ry0 < ry1 <= y1 - 0.05
+
+
+def test_import_does_not_log_the_mink_warning():
+    out = subprocess.run(
+        [sys.executable, "-c", "import vp2.envs._tabletop_sim"],
+        env=dict(os.environ),
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert "mink" not in out.stdout + out.stderr

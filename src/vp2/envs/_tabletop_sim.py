@@ -29,7 +29,28 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
-import robosuite  # noqa: E402
+
+
+class _DropMinkWarning(logging.Filter):
+    """Drops robosuite's import-time "Could not load the mink-based whole-body IK" warning.
+
+    robosuite 1.5.2 logs it on every import when the optional ``mink`` package (only needed for
+    its GR1 whole-body IK, which vp2 does not use) is missing. robosuite sets its logger's level
+    while importing, so a level set beforehand would not stick; this filter drops that one
+    message and nothing else, and is removed once robosuite is imported.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("Could not load the mink-based whole-body IK")
+
+
+_robosuite_logger = logging.getLogger("robosuite_logs")
+_mink_filter = _DropMinkWarning()
+_robosuite_logger.addFilter(_mink_filter)
+try:
+    import robosuite  # noqa: E402
+finally:
+    _robosuite_logger.removeFilter(_mink_filter)
 from robosuite.controllers import load_composite_controller_config  # noqa: E402
 from robosuite.environments.manipulation.manipulation_env import ManipulationEnv  # noqa: E402
 from robosuite.models.arenas import TableArena  # noqa: E402
@@ -75,8 +96,15 @@ CONTROL_FREQ = 5
 #: Largest end-effector goal displacement per control step (m): robosuite's OSC default.
 OSC_OUTPUT_MAX = 0.05
 
-TABLE_FULL_SIZE = (0.8, 0.8, 0.05)
+#: The table (x, y, thickness; metres): only the part of robosuite's 0.8 x 0.8 m table that the
+#: arm works on, so that the camera can show the whole table with objects large enough to see
+#: at 64x64. Its top spans x in [-0.37, 0.21] (centre TABLE_CENTER_X), y in [-0.32, 0.32].
+TABLE_FULL_SIZE = (0.58, 0.64, 0.05)
+TABLE_CENTER_X = -0.08
 TABLE_TOP_Z = 0.8
+#: The robot's base: where robosuite puts it in front of its default 0.8 m table (the near
+#: edge of the smaller table is 0.19 m in front of it, robosuite's default gap is 0.16 m).
+ROBOT_BASE_POS = (-0.56, 0.0, 0.0)
 #: robosuite size parameters: cube half sides, cylinder (radius, half height), sphere radius.
 OBJECT_SIZES: dict[str, tuple[float, ...]] = {
     "large_cube": (0.025, 0.025, 0.025),
@@ -109,15 +137,15 @@ OBJECT_FRICTION = [0.5, 0.005, 0.0001]
 #: pushed at 0.2 m/s stops within about 2 cm of where the push ends.
 SPHERE_ROLLING_FRICTION = 0.004
 
-#: The benchmark camera: fixed, in front of and high above the table, looking down at about 70
-#: degrees (robosuite's ``agentview`` raised and pulled in; the paper's ``agentview_shift_2`` is
-#: likewise a shifted agent view). The pose keeps the four table corners and the robot's base
-#: in view while making the objects' workspace as large as possible in the image (searched
-#: over positions, look-at points and fields of view; see docs/tabletop.md).
+#: The benchmark camera: fixed, nearly overhead (84 degrees elevation, from the front) and far
+#: away with a narrow field of view, so that objects look about the same size everywhere on
+#: the table. The pose keeps the four table corners and the forearm in the 64x64 image and
+#: makes a 5 cm object in the objects' workspace as large as possible there (searched over
+#: elevations, look-at points and fields of view; see docs/tabletop.md).
 CAMERA_NAME = "vp2_tabletop"
-CAMERA_POS = (0.45, 0.0, 2.15)
-CAMERA_LOOKAT = (-0.025, 0.0, 0.8)
-CAMERA_FOVY = 35.0
+CAMERA_POS = (0.10, 0.0, 2.76)
+CAMERA_LOOKAT = (-0.11, 0.0, 0.8)
+CAMERA_FOVY = 20.0
 
 # MuJoCo's default geom colour: with a material assigned, the renderer uses the material's.
 _DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
@@ -193,12 +221,12 @@ class TabletopWorld(ManipulationEnv):
     def _load_model(self) -> None:
         super()._load_model()
         robot_model = self.robots[0].robot_model
-        robot_model.set_base_xpos(robot_model.base_xpos_offset["table"](TABLE_FULL_SIZE[0]))
+        robot_model.set_base_xpos(list(ROBOT_BASE_POS))
 
         arena = TableArena(
             table_full_size=TABLE_FULL_SIZE,
             table_friction=TABLE_FRICTION,
-            table_offset=(0.0, 0.0, TABLE_TOP_Z),
+            table_offset=(TABLE_CENTER_X, 0.0, TABLE_TOP_Z),
         )
         arena.set_origin([0, 0, 0])
         arena.set_camera(

@@ -57,9 +57,9 @@ __all__ = [
 #: Distance the pushed object should travel (metres), SPEC §3.
 PUSH_DISTANCE = 0.3
 #: Where targets may lie (world x range, y range; metres): on the table (whose top spans
-#: +-0.4 m) with the whole object at least 5 cm from its edges, and not so far from the robot
-#: (x > 0.15) that the arm pushes poorly there.
-TARGET_REGION: tuple[tuple[float, float], tuple[float, float]] = ((-0.3, 0.15), (-0.32, 0.32))
+#: x in [-0.37, 0.21], y in [-0.32, 0.32]) with every object's centre at least 6 cm from its
+#: edges, and not so far from the robot (x > 0.15) that the arm pushes poorly there.
+TARGET_REGION: tuple[tuple[float, float], tuple[float, float]] = ((-0.3, 0.15), (-0.26, 0.26))
 #: The push stops when the object is this close to its target (metres).
 DONE_TOLERANCE = 0.012
 
