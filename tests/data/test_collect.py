@@ -8,10 +8,10 @@ import time
 import numpy as np
 import pytest
 
+from tests.data.conftest import TINY
 from vp2.data import storage
 from vp2.data.collect import CollectionConfig, chunk_plan, collect, rollout, trajectory_seed
 from vp2.data.policies import data_noise_sigma, make_data_env
-from tests.data.conftest import TINY
 
 
 def test_chunk_plan_covers_every_index_once():

@@ -147,7 +147,8 @@ class TaskSuite:
                 if meta.get("format") != SUITE_FORMAT:
                     raise ValueError(f"format {meta.get('format')!r}, expected {SUITE_FORMAT!r}")
                 instances = []
-                for task, tm in meta["tasks"].items():
+                # Categories in the order they were saved (JSON keys are sorted by name).
+                for task, tm in sorted(meta["tasks"].items(), key=lambda kv: kv[1]["prefix"]):
                     p = tm["prefix"]
                     init, goal = z[f"{p}_init_states"], z[f"{p}_goal_states"]
                     images, actions = z[f"{p}_goal_images"], z[f"{p}_actions"]
