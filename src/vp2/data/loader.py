@@ -110,7 +110,9 @@ class ClipDataset(Dataset):
         rec = self.records[rid]
         g = self._file(rec.path)["data"][rec.name]
         end = start + self.clip_length
-        frames = torch.from_numpy(g["obs/rgb"][start:end]).permute(0, 3, 1, 2)  # (T, 3, H, W)
+        # Contiguous: a permuted view is channels-last, which changes conv rounding (and trips a
+        # oneDNN bug in torch 2.13 on CPU).
+        frames = torch.from_numpy(g["obs/rgb"][start:end]).permute(0, 3, 1, 2).contiguous()  # (T, 3, H, W)
         if not self.uint8:
             frames = frames.float().div_(255.0)
         actions = torch.from_numpy(g["actions"][start : end - 1])  # (T - 1, A)

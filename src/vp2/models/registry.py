@@ -1,0 +1,246 @@
+"""Registered models, their size presets, and loading trained models from checkpoints.
+
+A model is named ``name`` (e.g. ``"fitvid"``) plus a preset (e.g. ``"mini"``) plus optional
+field overrides of its config dataclass. Presets live here, in one place::
+
+    model = build_model("svg_prime", "m0.5k0.5", action_dim=4, seed=0)
+    model = load_model("runs/svg/checkpoints")          # a trained one, ready for planning
+    model = load_model_spec("svg_prime:runs/svg")       # the runner's --model syntax
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import types
+import typing
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from vp2.models.base import VideoPredictor
+from vp2.models.fitvid import FitVid
+from vp2.models.svg_prime import SVGPrime
+
+#: Format tag of checkpoints written by :mod:`vp2.training` (and read by :func:`load_model`).
+CHECKPOINT_FORMAT = "vp2-checkpoint/1"
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelEntry:
+    """A registered model: its class and named presets (config field overrides)."""
+
+    model_class: type[VideoPredictor]
+    presets: Mapping[str, Mapping[str, Any]]
+    default_preset: str
+
+
+MODELS: dict[str, ModelEntry] = {
+    SVGPrime.name: ModelEntry(
+        SVGPrime,
+        presets={
+            # Reference parameter counts (rnn_size 512): 5.8 M, 21.5 M, 83 M, 325 M.
+            "m0.25k0.25": {"m": 0.25, "k": 0.25},
+            "m0.5k0.5": {"m": 0.5, "k": 0.5},
+            "m1k1": {"m": 1.0, "k": 1.0},
+            "m2k2": {"m": 2.0, "k": 2.0},
+        },
+        default_preset="m1k1",
+    ),
+    FitVid.name: ModelEntry(
+        FitVid,
+        presets={
+            # Reference parameter counts: 10.4 M, 6.6 M, 1.5 M.
+            "default": {},
+            "small_encoder": {"g_dim": 64, "rnn_size": 128},
+            "mini": {"g_dim": 32, "rnn_size": 64, "num_base_filters": 8},
+        },
+        default_preset="default",
+    ),
+}
+
+
+def model_names() -> list[str]:
+    """Names of the registered models."""
+    return sorted(MODELS)
+
+
+def preset_names(name: str) -> list[str]:
+    """Presets of a registered model."""
+    return list(_entry(name).presets)
+
+
+def all_variants() -> list[tuple[str, str]]:
+    """Every ``(model name, preset)`` pair (for contract tests and benchmarks)."""
+    return [(name, preset) for name in model_names() for preset in MODELS[name].presets]
+
+
+def _entry(name: str) -> ModelEntry:
+    if name not in MODELS:
+        raise ValueError(f"unknown model {name!r}; registered: {', '.join(model_names())}")
+    return MODELS[name]
+
+
+def _coerce(value: Any, annotation: Any, key: str) -> Any:
+    """Converts a command-line string to a config field's type; leaves typed values alone."""
+    if not isinstance(value, str):
+        return value
+    hint = annotation
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):  # e.g. ``float | None``
+        if value.lower() in ("none", "null"):
+            return None
+        hint = next(a for a in typing.get_args(hint) if a is not type(None))
+        origin = typing.get_origin(hint)
+    try:
+        if hint is bool:
+            if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError(value)
+            return value.lower() in ("true", "1", "yes")
+        if hint in (int, float, str):
+            return hint(value)
+        if origin in (tuple, list):
+            (item,) = {a for a in typing.get_args(hint) if a is not Ellipsis} or {str}
+            items = [item(v) for v in value.strip("()[]").split(",") if v.strip()]
+            return tuple(items) if origin is tuple else items
+    except ValueError as exc:
+        raise ValueError(f"override {key}={value!r}: not a valid {hint}") from exc
+    return value
+
+
+def apply_overrides(config: Any, overrides: Mapping[str, Any]) -> Any:
+    """A copy of a config dataclass with ``overrides`` applied, strings coerced to field types.
+
+    Raises:
+        ValueError: on an unknown field (listing the known ones) or an unparsable value.
+    """
+    hints = typing.get_type_hints(type(config))
+    fields = {f.name for f in dataclasses.fields(config)}
+    unknown = set(overrides) - fields
+    if unknown:
+        raise ValueError(
+            f"unknown {type(config).__name__} field(s) {sorted(unknown)}; known: {sorted(fields)}"
+        )
+    return dataclasses.replace(config, **{k: _coerce(v, hints[k], k) for k, v in overrides.items()})
+
+
+def parse_overrides(items: Sequence[str]) -> dict[str, str]:
+    """Parses command-line ``key=value`` strings (values stay strings; see
+    :func:`apply_overrides`)."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"override {item!r}: expected key=value")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def make_config(name: str, preset: str | None = None, **overrides: Any) -> Any:
+    """The config of a registered model: its class defaults, then the preset, then overrides."""
+    entry = _entry(name)
+    preset = entry.default_preset if preset is None else preset
+    if preset not in entry.presets:
+        raise ValueError(
+            f"unknown preset {preset!r} of {name}; presets: {', '.join(entry.presets)}"
+        )
+    config = entry.model_class.config_class()
+    config = apply_overrides(config, dict(entry.presets[preset]))
+    return apply_overrides(config, overrides)
+
+
+def model_from_config(name: str, config: Any | Mapping[str, Any], seed: int = 0) -> VideoPredictor:
+    """Builds a registered model from its config (dataclass or plain dict from a checkpoint).
+
+    Weights are initialised from ``seed`` in a forked RNG, so building a model neither reads
+    nor changes the global random state.
+    """
+    cls = _entry(name).model_class
+    if isinstance(config, Mapping):
+        config = cls.config_class(**config)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return cls(config)
+
+
+def build_model(
+    name: str, preset: str | None = None, seed: int = 0, **overrides: Any
+) -> VideoPredictor:
+    """A freshly initialised model: ``model_from_config(name, make_config(...), seed)``."""
+    return model_from_config(name, make_config(name, preset, **overrides), seed)
+
+
+# --------------------------------------------------------------------------- checkpoints
+
+
+def latest_checkpoint(path: str | os.PathLike[str]) -> Path:
+    """The checkpoint a path designates: a file itself, else the newest ``step_*.pt`` in the
+    directory or in its ``checkpoints/`` subdirectory (a training run's output directory).
+
+    Raises:
+        FileNotFoundError: if there is none.
+    """
+    path = Path(path)
+    if path.is_file():
+        return path
+    for directory in (path, path / "checkpoints"):
+        found = sorted(directory.glob("step_*.pt")) if directory.is_dir() else []
+        if found:
+            return found[-1]  # zero-padded step numbers sort in step order
+    raise FileNotFoundError(f"{path}: no checkpoint (expected a .pt file or a run directory)")
+
+
+def read_checkpoint(path: str | os.PathLike[str], map_location: Any = "cpu") -> dict[str, Any]:
+    """Loads a vp2 checkpoint with ``torch.load(weights_only=True)`` and checks its format."""
+    path = latest_checkpoint(path)
+    payload = torch.load(path, map_location=map_location, weights_only=True)
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: not a {CHECKPOINT_FORMAT} checkpoint")
+    return payload
+
+
+def load_model(
+    path: str | os.PathLike[str],
+    device: str | torch.device | None = None,
+    expected_name: str | None = None,
+) -> VideoPredictor:
+    """A trained model from a checkpoint, in eval mode, ready for ``predict``.
+
+    Args:
+        path: A checkpoint file or a training run directory (its newest checkpoint).
+        device: Where to put it; default CUDA if available, else CPU.
+        expected_name: If given, the checkpoint must hold this model.
+
+    Raises:
+        FileNotFoundError: no checkpoint at ``path``.
+        ValueError: not a vp2 checkpoint, or a different model than ``expected_name``.
+    """
+    device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    payload = read_checkpoint(path)
+    name = payload["model"]["name"]
+    if expected_name is not None and name != expected_name:
+        raise ValueError(f"{latest_checkpoint(path)} holds a {name!r} model, not {expected_name!r}")
+    model = model_from_config(name, payload["model"]["config"])
+    model.load_state_dict(payload["model"]["state_dict"])
+    return model.to(device).eval()
+
+
+def parse_model_spec(spec: str) -> tuple[str, Path]:
+    """Splits the runner's ``name:path`` model syntax (e.g. ``svg_prime:runs/svg``).
+
+    Raises:
+        ValueError: without a colon, or with an unregistered name.
+    """
+    name, sep, path = spec.partition(":")
+    if not sep or not path:
+        raise ValueError(f"model {spec!r}: expected NAME:CHECKPOINT, e.g. svg_prime:runs/svg")
+    _entry(name)
+    return name, Path(path)
+
+
+def load_model_spec(spec: str, device: str | torch.device | None = None) -> VideoPredictor:
+    """:func:`load_model` from ``name:path``, checking the checkpoint holds that model."""
+    name, path = parse_model_spec(spec)
+    return load_model(path, device=device, expected_name=name)

@@ -1,0 +1,67 @@
+"""Training checkpoints: written atomically, loadable with ``torch.load(weights_only=True)``.
+
+A checkpoint is a dict of tensors and plain data only (no pickled classes)::
+
+    format         "vp2-checkpoint/1"
+    model          {"name": str, "config": dict, "state_dict": {...}}   <- all load_model needs
+    step           optimisation steps done
+    optimizer      optimizer.state_dict()
+    scaler         GradScaler.state_dict() (mixed precision on CUDA; {} otherwise)
+    rng            {"noise": generator state, "torch": CPU state, "cuda": [per-device states]}
+    train_config   the TrainConfig as a dict
+    dataset        {"path", "config" (the dataset manifest's, with env metadata), ...}
+    metrics        the latest validation metrics
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from vp2.models.registry import CHECKPOINT_FORMAT
+from vp2.utils.io import atomic_path
+
+CHECKPOINT_DIR = "checkpoints"
+
+
+def checkpoint_path(out_dir: str | os.PathLike[str], step: int) -> Path:
+    return Path(out_dir) / CHECKPOINT_DIR / f"step_{step:08d}.pt"
+
+
+def list_checkpoints(out_dir: str | os.PathLike[str]) -> list[Path]:
+    """A run's checkpoints, oldest first (zero-padded step numbers sort in step order)."""
+    directory = Path(out_dir) / CHECKPOINT_DIR
+    return sorted(directory.glob("step_*.pt")) if directory.is_dir() else []
+
+
+def save_checkpoint(path: str | os.PathLike[str], payload: dict[str, Any]) -> Path:
+    """Writes a checkpoint atomically (temporary file, then ``os.replace``)."""
+    payload = {"format": CHECKPOINT_FORMAT, **payload}
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return Path(path)
+
+
+def prune_checkpoints(out_dir: str | os.PathLike[str], keep: int) -> None:
+    """Deletes all but the newest ``keep`` (>= 1) checkpoints of a run."""
+    for old in list_checkpoints(out_dir)[: -max(1, keep)]:
+        old.unlink(missing_ok=True)
+
+
+def rng_state(noise: torch.Generator) -> dict[str, Any]:
+    """The random states a resumed run needs to continue bit-for-bit."""
+    return {
+        "noise": noise.get_state(),
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+    }
+
+
+def restore_rng_state(state: dict[str, Any], noise: torch.Generator) -> None:
+    noise.set_state(state["noise"])
+    torch.set_rng_state(state["torch"])
+    if state.get("cuda") and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])

@@ -1,0 +1,178 @@
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from tests.models.synthetic import write_moving_square_dataset
+from vp2.models import VideoPredictionModel, load_model, load_model_spec
+from vp2.training import StepBatchSampler, TrainConfig, train
+
+# Tiny models so that a training step takes milliseconds on a CPU.
+TINY = {
+    "fitvid": ("mini", {}),
+    "svg_prime": ("m0.25k0.25", {"m": "0.125", "k": "0.125"}),
+}
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    # 6 trajectories of 16 frames at 32x32, A = 4; every 3rd is validation: 20 train clips.
+    return write_moving_square_dataset(tmp_path_factory.mktemp("data") / "squares")
+
+
+def _config(dataset, out_dir, model="fitvid", **kwargs) -> TrainConfig:
+    preset, overrides = TINY[model]
+    defaults = dict(
+        model=model,
+        preset=preset,
+        model_overrides=overrides,
+        dataset=dataset,
+        out_dir=out_dir,
+        steps=4,
+        batch_size=4,
+        eval_interval=2,
+        eval_batches=1,
+        ckpt_interval=2,
+        log_interval=1,
+        workers=0,
+        progress=False,
+        lr=1e-3,
+    )
+    return TrainConfig(**{**defaults, **kwargs})
+
+
+def _rows(out_dir):
+    with (out_dir / "metrics.csv").open() as f:
+        return list(csv.DictReader(f))
+
+
+def test_train_writes_a_complete_run(dataset, tmp_path):
+    out = tmp_path / "run"
+    result = train(_config(dataset, out))
+    assert result.step == 4 and result.checkpoint == out / "checkpoints" / "step_00000004.pt"
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == [
+        "step_00000002.pt",
+        "step_00000004.pt",
+    ]
+    saved = json.loads((out / "config.json").read_text())
+    assert (
+        saved["model"]["config"]["action_dim"] == 4 and saved["model"]["config"]["image_size"] == 32
+    )
+    assert saved["dataset"]["train_clips"] == 20
+
+    rows = _rows(out)
+    losses = [float(r["value"]) for r in rows if r["tag"] == "train/loss"]
+    assert [int(r["step"]) for r in rows if r["tag"] == "train/loss"] == [1, 2, 3, 4]
+    assert all(np.isfinite(losses))
+    assert [int(r["step"]) for r in rows if r["tag"] == "valid/pred_mse"] == [2, 4]
+    assert {"train/grad_norm", "train/mse", "train/kl", "valid/loss", "valid/mse"} <= {
+        r["tag"] for r in rows
+    }
+    assert set(result.valid_metrics) >= {"valid/loss", "valid/pred_mse"}
+
+    # Grid: 4 validation clips x (true row + predicted row), 12 frames, 1-pixel borders.
+    grid = np.asarray(Image.open(out / "samples" / "step_00000004.png"))
+    assert grid.shape == (8 * 33, 12 * 33, 3) and grid.dtype == np.uint8
+
+    # A checkpoint is plain data (weights_only) with everything needed to resume.
+    payload = torch.load(result.checkpoint, weights_only=True)
+    assert {"model", "optimizer", "rng", "step", "train_config", "dataset"} <= set(payload)
+    assert payload["dataset"]["config"]["env"] == "synthetic"
+
+    model = load_model(out, device="cpu")
+    assert isinstance(model, VideoPredictionModel) and not model.training
+    assert (model.name, model.action_dim, model.image_size) == ("fitvid", 4, 32)
+    pred = model.predict(torch.rand(2, 2, 3, 32, 32), torch.zeros(2, 11, 4))
+    assert pred.shape == (2, 10, 3, 32, 32)
+    assert load_model_spec(f"fitvid:{result.checkpoint}").name == "fitvid"
+    with pytest.raises(ValueError, match="holds a 'fitvid' model, not 'svg_prime'"):
+        load_model_spec(f"svg_prime:{out}")
+
+
+@pytest.mark.parametrize("model", sorted(TINY))
+def test_resume_is_bit_identical(dataset, tmp_path, model):
+    # Validation and checkpoints at different steps must not perturb training either.
+    straight = train(_config(dataset, tmp_path / "a", model, steps=6, eval_interval=4))
+    train(_config(dataset, tmp_path / "b", model, steps=3, ckpt_interval=3, eval_interval=2))
+    resumed = train(
+        _config(
+            dataset,
+            tmp_path / "b",
+            model,
+            steps=6,
+            ckpt_interval=3,
+            eval_interval=2,
+            workers=2,
+            resume=True,
+        )
+    )
+    assert resumed.step == 6
+    a = torch.load(straight.checkpoint, weights_only=True)
+    b = torch.load(resumed.checkpoint, weights_only=True)
+    for key, value in a["model"]["state_dict"].items():
+        torch.testing.assert_close(b["model"]["state_dict"][key], value, rtol=0, atol=0, msg=key)
+    for key, state in a["optimizer"]["state"].items():
+        torch.testing.assert_close(
+            b["optimizer"]["state"][key]["exp_avg"], state["exp_avg"], rtol=0, atol=0
+        )
+    # The resumed log continues the interrupted one (steps 1-3, then 4-6).
+    steps = [int(r["step"]) for r in _rows(tmp_path / "b") if r["tag"] == "train/loss"]
+    assert steps == [1, 2, 3, 4, 5, 6]
+
+
+def test_existing_runs_are_not_overwritten(dataset, tmp_path):
+    train(_config(dataset, tmp_path / "run", steps=2))
+    with pytest.raises(FileExistsError, match="resume=True"):
+        train(_config(dataset, tmp_path / "run", steps=2))
+    with pytest.raises(
+        ValueError, match=r"configuration changed \(lr: checkpoint 0.001 vs now 0.01\)"
+    ):
+        train(_config(dataset, tmp_path / "run", steps=4, lr=1e-2, resume=True))
+    # Resuming a finished run does nothing and returns its checkpoint.
+    done = train(_config(dataset, tmp_path / "run", steps=2, resume=True))
+    assert done.step == 2 and done.checkpoint.name == "step_00000002.pt"
+
+
+def test_config_errors(dataset, tmp_path):
+    with pytest.raises(ValueError, match="action_dim=5 disagrees with the dataset"):
+        train(_config(dataset, tmp_path / "x", model_overrides={"action_dim": 5}))
+    with pytest.raises(ValueError, match="needs a perceptual loss"):
+        train(_config(dataset, tmp_path / "y", perceptual_weight=1.0))
+    with pytest.raises(ValueError, match="fewer than batch_size=64"):
+        train(_config(dataset, tmp_path / "z", batch_size=64))
+
+
+def test_perceptual_loss_term(dataset, tmp_path):
+    calls = []
+
+    def l1(pred, target):
+        calls.append(pred.shape)
+        return (pred - target).abs().mean(dim=(1, 2, 3))
+
+    result = train(
+        _config(dataset, tmp_path / "p", steps=2, perceptual_weight=1.0), perceptual_fn=l1
+    )
+    assert calls[0] == (4 * 11, 3, 32, 32)
+    assert "train/perceptual" in result.train_metrics
+
+    with pytest.raises(FloatingPointError, match="loss is nan by step 1"):
+        train(
+            _config(dataset, tmp_path / "nan", steps=2, perceptual_weight=1.0),
+            perceptual_fn=lambda p, t: torch.full(p.shape[:1], float("nan")),
+        )
+
+
+def test_step_batch_sampler_is_a_function_of_seed_and_step():
+    full = list(StepBatchSampler(10, 3, seed=7, start=0, stop=9))
+    assert len(full) == 9 and all(len(b) == 3 for b in full)
+    assert list(StepBatchSampler(10, 3, seed=7, start=4, stop=9)) == full[4:]
+    for epoch in range(3):  # 3 batches per epoch, no index repeated within one
+        seen = sum(full[3 * epoch : 3 * epoch + 3], [])
+        assert len(set(seen)) == 9
+    assert full[:3] != full[3:6]  # a new permutation each epoch
+    assert list(StepBatchSampler(10, 3, seed=8, start=0, stop=9)) != full
