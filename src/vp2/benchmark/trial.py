@@ -1,0 +1,215 @@
+"""One control trial: an agent acting on one task instance for 15 steps (SPEC §4).
+
+The trial resets the environment to the instance's initial state, executes the zero action
+(so that two context frames exist), then asks the agent for an action at every remaining
+step. After every step the success criterion is judged from the simulator state; the trial
+succeeds if it holds at any step. Images are only what the agent sees, never the judge.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import zlib
+from typing import Any
+
+import numpy as np
+
+from vp2.benchmark.agent import Agent, Observation, check_agent_for_env
+from vp2.data.suite import TaskInstance
+from vp2.envs.base import Env
+
+#: Control steps per trial (SPEC §4).
+NUM_CONTROL_STEPS = 15
+
+
+def trial_seed(task: str, index: int, seed: int) -> int:
+    """The seed of trial ``(task, instance index, control-run seed)``.
+
+    A function of the trial's key only, so a trial's result never depends on which worker ran
+    it, in which order, or whether the run was resumed.
+    """
+    ss = np.random.SeedSequence([seed, zlib.crc32(task.encode()), index])
+    return int(ss.generate_state(1, np.uint32)[0])
+
+
+@dataclasses.dataclass
+class TrialResult:
+    """The outcome of one control trial.
+
+    Attributes:
+        task: Task category.
+        instance: Instance index within the category.
+        seed: Control-run seed.
+        success: Whether the success criterion held at any step.
+        success_steps: ``(num_steps,)`` success after each step.
+        actions: ``(num_steps, A)`` executed actions (after clipping to [-1, 1]).
+        frames: ``(num_steps + 1, H, W, 3)`` uint8 observations, the initial one first.
+        goal_image: ``(H, W, 3)`` uint8 goal at the agent's resolution.
+        predicted_frames: ``(num_planning_steps, T, H, W, 3)`` uint8 predictions of the
+            chosen plans, if the agent recorded them.
+        planning_times: Seconds of each planning step (``agent.act``).
+        env_time: Seconds spent stepping and rendering the environment.
+        total_time: Seconds of the whole trial (environment construction excluded).
+        cost_kind: How plans were scored (:data:`vp2.benchmark.agent.CostKind`).
+        agent: The agent's settings for this trial (:meth:`Agent.describe`).
+        scores: Best score the optimizer found at each planning step (``None`` if none).
+    """
+
+    task: str
+    instance: int
+    seed: int
+    success: bool
+    success_steps: list[bool]
+    actions: np.ndarray
+    frames: np.ndarray
+    goal_image: np.ndarray
+    predicted_frames: np.ndarray | None
+    planning_times: list[float]
+    env_time: float
+    total_time: float
+    cost_kind: str
+    agent: dict[str, Any]
+    scores: list[float | None]
+
+    @property
+    def first_success_step(self) -> int | None:
+        """Index of the first step after which the task was solved, or ``None``."""
+        return next((i for i, s in enumerate(self.success_steps) if s), None)
+
+    def record(self) -> dict[str, Any]:
+        """The JSON-able fields of a ``trials.jsonl`` record (arrays as lists)."""
+        return {
+            "task": self.task,
+            "instance": self.instance,
+            "seed": self.seed,
+            "success": self.success,
+            "success_steps": list(self.success_steps),
+            "first_success_step": self.first_success_step,
+            "num_steps": len(self.success_steps),
+            "actions": self.actions.tolist(),
+            "cost": self.cost_kind,
+            "agent": self.agent,
+            "scores": self.scores,
+            "timings": {
+                "planning_s": self.planning_times,
+                "planning_mean_s": float(np.mean(self.planning_times))
+                if self.planning_times
+                else 0.0,
+                "env_s": self.env_time,
+                "total_s": self.total_time,
+            },
+        }
+
+
+class ControlTrial:
+    """Runs one agent on one task instance.
+
+    Args:
+        instance: The task instance.
+        agent: The agent (planning agent, or a baseline with the same interface).
+        seed: Control-run seed; the agent's randomness comes from :func:`trial_seed`.
+        num_steps: Control steps (SPEC: 15; fewer only for tests).
+        stop_on_success: Stop at the first successful step. Success is "at any step", so the
+            outcome is the same; the remaining steps and their frames are skipped.
+        env: An environment built from ``instance.env_meta`` to reuse (it is reset to the
+            instance's initial state); ``None`` builds one and closes it afterwards.
+    """
+
+    def __init__(
+        self,
+        instance: TaskInstance,
+        agent: Agent,
+        seed: int,
+        num_steps: int = NUM_CONTROL_STEPS,
+        stop_on_success: bool = False,
+        env: Env | None = None,
+    ) -> None:
+        if num_steps < 2:
+            raise ValueError(f"a trial needs at least 2 control steps, got {num_steps}")
+        self.instance = instance
+        self.agent = agent
+        self.seed = seed
+        self.num_steps = num_steps
+        self.stop_on_success = stop_on_success
+        self._env = env
+
+    def run(self) -> TrialResult:
+        """Plays the trial; exceptions of the agent or the simulator propagate."""
+        inst = self.instance
+        env = self._env if self._env is not None else inst.make_env(observation_size=None)
+        try:
+            return self._run(env)
+        finally:
+            if self._env is None:
+                env.close()
+
+    def _goal_image(self, env: Env, size: int) -> np.ndarray:
+        if self.instance.goal_image.shape[0] == size:
+            return self.instance.goal_image
+        # Another resolution: the goal is re-rendered from its state, as every image can be.
+        env.reset_to(self.instance.goal_state)
+        return env.render(size)
+
+    def _run(self, env: Env) -> TrialResult:
+        inst, agent = self.instance, self.agent
+        check_agent_for_env(agent, env.action_dim, inst.task)
+        size = agent.image_size
+        start = time.perf_counter()
+        goal_image = self._goal_image(env, size)
+        env.reset_to(inst.init_state)
+        env.set_goal(inst.goal_state)
+        agent.reset(inst.task, goal_image, trial_seed(inst.task, inst.index, self.seed))
+        env_time = 0.0
+        t0 = time.perf_counter()
+        frames = [env.render(size)]
+        env_time += time.perf_counter() - t0
+        actions: list[np.ndarray] = []
+        success_steps: list[bool] = []
+        planning_times: list[float] = []
+        scores: list[float | None] = []
+        predicted: list[np.ndarray] = []
+        env_meta = inst.env_meta
+        for step in range(self.num_steps):
+            if step == 0:
+                action = np.zeros(env.action_dim)  # SPEC §4: the first step executes zero
+            else:
+                observation = Observation(
+                    step=step,
+                    frames=np.stack(frames),
+                    last_action=actions[-1],
+                    env_meta=env_meta,
+                    state=env.get_state(),
+                )
+                t0 = time.perf_counter()
+                action, info = agent.act(observation)
+                planning_times.append(time.perf_counter() - t0)
+                scores.append(info.get("best_score"))
+                if "predicted_frames" in info:
+                    predicted.append(info["predicted_frames"])
+            action = env.check_action(action)  # the executed (clipped) action is recorded
+            t0 = time.perf_counter()
+            env.step(action)
+            success_steps.append(bool(env.is_success(inst.goal_state)))
+            frames.append(env.render(size))
+            env_time += time.perf_counter() - t0
+            actions.append(action)
+            if self.stop_on_success and success_steps[-1]:
+                break
+        return TrialResult(
+            task=inst.task,
+            instance=inst.index,
+            seed=self.seed,
+            success=any(success_steps),
+            success_steps=success_steps,
+            actions=np.stack(actions),
+            frames=np.stack(frames),
+            goal_image=goal_image,
+            predicted_frames=np.stack(predicted) if predicted else None,
+            planning_times=planning_times,
+            env_time=env_time,
+            total_time=time.perf_counter() - start,
+            cost_kind=agent.cost_kind,
+            agent=agent.describe(),
+            scores=scores,
+        )
