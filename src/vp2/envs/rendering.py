@@ -105,7 +105,12 @@ _LIVE_RENDERERS: weakref.WeakSet[Renderer] = weakref.WeakSet()
 @atexit.register
 def _close_all_renderers() -> None:
     for renderer in list(_LIVE_RENDERERS):
-        renderer.close()
+        try:
+            renderer.close()
+        except Exception:  # noqa: BLE001
+            # At interpreter exit EGL may already be terminated (atexit order across
+            # libraries is not ours to fix); the OS reclaims the contexts anyway.
+            renderer._contexts.clear()
 
 
 _EXIT_HOOK_AFTER_GL = False

@@ -77,10 +77,10 @@ INIT_ROBOT_NOISE = 0.15  # times a uniform draw over each actuator's control ran
 #: All three lights must cast shadows (with two the 64x64 image is ~9/255 off, with none ~38),
 #: and each shadow-casting light re-draws the arm's 134k-triangle meshes, so the savings come
 #: from elsewhere: no reflection pass (the floor's reflection is barely visible: 0.1/255), no
-#: multisampling (the 120 px render is resized anyway: ~5/255), small shadow maps (their
-#: resolution hardly matters at this size). Measured (``benchmarks/bench_robodesk.py render``,
-#: 98 varied states): mean absolute error 6.1/255 (max 6.6) against ``full_quality()`` at
-#: 64x64, about 3.5x cheaper. See docs/robodesk.md.
+#: multisampling (the 120 px render is resized anyway: ~5/255), 512² shadow maps (40% cheaper
+#: than 4096² for 1.4/255). Measured (``benchmarks/bench_robodesk.py render``, 98 varied
+#: states): mean absolute error 6.1/255 (max 6.6) against ``full_quality()`` at 64x64, 3.5x
+#: cheaper. See docs/robodesk.md.
 RENDER_SPEC = RenderSpec(
     camera=FreeCamera(distance=1.8, azimuth=90.0, elevation=-60.0, lookat=(0.0, 0.535, 1.1)),
     min_render_size=120,

@@ -199,8 +199,18 @@ class OpenDrawerPolicy(RoboDeskPolicy):
 
     The wrist keeps the fingers' opening axis along x, so that the closed fingers present
     their thin side to the bar and the wall.
+
+    Known limitation: this succeeds on only ~12% of the package's initial states. With the
+    gripper pitched forward (most initial arm poses), the arm cannot reach close enough to its
+    base to pull the bar far: the wall hook does the opening, and it only fits when the drawer
+    starts open by more than ~8.5 cm. See docs/robodesk.md.
     """
 
+    # Drawer geometry at drawer joint q = 0 (world frame); everything moves with +q along y.
+    BAR_Y = 0.49  # handle bar axis
+    BAR_Z = 0.665
+    WALL_INNER_Y = 0.61  # inner face of the drawer's front wall (outer face: 0.59)
+    FINGER_HALF_THICKNESS = 0.02  # closed fingers, across the opening axis
     WALL_X = 0.18
     BAR_X = 0.05
     WALL_TIP_Z = 0.64
@@ -228,7 +238,10 @@ class OpenDrawerPolicy(RoboDeskPolicy):
         if mode == "wall":
             x, tip_z, press = self.WALL_X, self.WALL_TIP_Z, 0.05
             # The finger crosses the wall's top midway between the wall and the desk's edge.
-            y_at_wall_top = 0.5 * ((0.61 + q + 0.02) + (DESK_FRONT_Y - 0.02))
+            y_at_wall_top = 0.5 * (
+                (self.WALL_INNER_Y + q + self.FINGER_HALF_THICKNESS)
+                + (DESK_FRONT_Y - self.FINGER_HALF_THICKNESS)
+            )
 
             def tip_y(z: float) -> float:
                 return y_at_wall_top + (DRAWER_WALL_TOP_Z - z) * lean
@@ -236,8 +249,10 @@ class OpenDrawerPolicy(RoboDeskPolicy):
             x, tip_z, press = self.BAR_X, self.BAR_TIP_Z, 0.03
 
             def tip_y(z: float) -> float:
-                # Behind the bar (y = 0.49 + q) where the finger crosses it, short of the wall.
-                return min(0.49 + q + 0.03 + max(0.665 - z, 0.0) * lean, 0.57 + q)
+                # 3 cm behind the bar where the finger crosses the bar's height, short of the
+                # front wall's outer face.
+                behind_bar = self.BAR_Y + q + 0.03 + max(self.BAR_Z - z, 0.0) * lean
+                return min(behind_bar, self.WALL_INNER_Y - 0.04 + q)
 
         if self.phase == "lift":
             target = np.array([tip[0], tip[1], self.STAGE_Z])
