@@ -12,15 +12,21 @@ from collections.abc import Sequence
 from pathlib import Path
 
 DEFAULT_TRAJECTORIES = {"robodesk": 20, "tabletop": 100}
+RUN_OPTIMIZERS = ["mppi", "cem", "cem_gd", "lbfgs"]
 
 
 def _cmd_main(args: argparse.Namespace) -> int:
-    from vp2.envs.gallery import render_gallery
+    from vp2.benchmark.main_job import MainJobConfig, run_main_job
 
-    png, previews = render_gallery(args.out, seed=args.seed)
-    for p in previews:
-        print(p.summary())
-    print(f"\ncontact sheet: {png}\nsummary:       {Path(args.out) / 'tasks.txt'}")
+    config = MainJobConfig(out=args.out, num_instances=args.num_instances,
+                           seeds=tuple(args.seeds), tasks=tuple(args.tasks or ()),
+                           model_samples=args.model_samples or None, workers=args.workers,
+                           agents=tuple(args.agents), resume=not args.fresh)
+    if args.fresh and Path(args.out).exists():
+        raise FileExistsError(f"{args.out} exists; remove it or drop --fresh to resume it")
+    table, path = run_main_job(config)
+    print(f"\n{table}\n\nresults: {path}  (run directories next to it; "
+          f"contact sheet of the tasks: {Path(args.out) / 'tasks.png'})")
     return 0
 
 
@@ -81,14 +87,108 @@ def _cmd_tasks(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_config_from_args(args: argparse.Namespace):
+    """The :class:`vp2.benchmark.RunConfig` of parsed ``vp2 run`` arguments."""
+    from vp2.benchmark.runner import RunConfig, parse_model_args
+
+    if args.model is None and args.agent == "planning":
+        raise ValueError("--model is required with --agent planning (e.g. --model repeat_last_frame)")
+    config = RunConfig(
+        model=args.model or "none",
+        out=args.out,
+        model_args=parse_model_args(args.model_arg),
+        agent=args.agent,
+        suite=args.suite,
+        tasks=tuple(args.tasks or ()),
+        num_instances=args.num_instances,
+        seeds=tuple(args.seeds),
+        optimizer=args.optimizer,
+        num_samples=args.num_samples,
+        gamma=args.gamma,
+        num_iterations=args.num_iterations,
+        cost=args.cost,
+        num_steps=args.num_steps,
+        stop_on_success=args.stop_on_success,
+        workers=args.workers,
+        device=args.device,
+        max_retries=args.max_retries,
+        resume=args.resume,
+        retry_errors=args.retry_errors,
+        save_gifs=not args.no_gifs,
+        save_predictions=args.save_predictions,
+        oracle=args.oracle,
+        progress=not args.no_progress,
+    )
+    config.validate()
+    return config
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from vp2.benchmark.runner import run_benchmark
+
+    result = run_benchmark(run_config_from_args(args))
+    print(result.table)
+    print(f"\nrun directory: {result.run_dir}  ({result.num_run} trials run, "
+          f"{result.num_skipped} already done, {result.num_errors} errors)")
+    return 1 if result.num_errors else 0
+
+
+def _add_run_parser(sub: argparse._SubParsersAction) -> None:
+    # Literal defaults and choices (importing the runner here would import torch for every
+    # command); tests/test_cli.py checks them against RunConfig, AGENTS and OPTIMIZERS.
+    p = sub.add_parser(
+        "run", help="evaluate a model by planning with it on the task suite (docs/benchmark.md)",
+        description="Evaluate a video prediction model by planning with it on the task suite. "
+                    "One flag per vp2.benchmark.RunConfig field (docs/benchmark.md).")
+    p.add_argument("--model", help="model spec: simulator | repeat_last_frame | NAME:CHECKPOINT "
+                   "| package.module:factory | file.yaml (with _target_)")
+    p.add_argument("--out", required=True, help="run directory")
+    p.add_argument("--model-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="model factory argument, repeatable; VALUE parsed as YAML")
+    p.add_argument("--agent", choices=["planning", "random"], default="planning")
+    p.add_argument("--suite", help="task suite file (default: the shipped suite)")
+    p.add_argument("--tasks", nargs="+", help="task names or env names (default: all)")
+    p.add_argument("--num-instances", type=int, help="first K instances per task (default: all)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--optimizer", choices=RUN_OPTIMIZERS, default="mppi")
+    p.add_argument("--num-samples", type=int, help="planner samples (default: SPEC, 200/800)")
+    p.add_argument("--gamma", type=float, default=0.05, help="MPPI inverse temperature")
+    p.add_argument("--num-iterations", type=int, help="planner iterations per step")
+    p.add_argument("--cost", choices=["auto", "spec", "pixel_only"], default="auto")
+    p.add_argument("--num-steps", type=int, default=15, help="control steps per trial")
+    p.add_argument("--stop-on-success", action="store_true")
+    p.add_argument("--workers", type=int, default=1, help="trial processes")
+    p.add_argument("--device", help="torch device (default: CUDA if available)")
+    p.add_argument("--max-retries", type=int, default=1)
+    p.add_argument("--resume", action="store_true", help="continue the run directory")
+    p.add_argument("--retry-errors", action="store_true", help="with --resume: re-run errors")
+    p.add_argument("--no-gifs", action="store_true", help="no per-trial GIFs")
+    p.add_argument("--save-predictions", action="store_true",
+                   help="also a GIF of the chosen plans' predictions")
+    p.add_argument("--oracle", help="oracle run directory to normalise scores by")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(fn=_cmd_run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="vp2", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("main", help="the README's main job on its embedded default")
+    p = sub.add_parser("main", help="the README's main job: a small evaluation on the defaults",
+                       description="Evaluates the shipped small model and the trivial baselines "
+                                   "on the first instance of every task category "
+                                   "(vp2.benchmark.main_job). Re-running resumes.")
     p.add_argument("--out", default="outputs/main", help="output directory")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--num-instances", type=int, default=1, help="instances per task category")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0], help="control-run seeds")
+    p.add_argument("--tasks", nargs="+", help="task categories or env names (default: all)")
+    p.add_argument("--model-samples", type=int, default=50,
+                   help="planner samples for the learned model (0: SPEC, 200/800)")
+    p.add_argument("--workers", type=int, default=2, help="trial processes")
+    p.add_argument("--agents", nargs="+", default=["model", "repeat_last_frame", "random"],
+                   choices=["model", "repeat_last_frame", "random"])
+    p.add_argument("--fresh", action="store_true", help="refuse an existing output directory")
     p.set_defaults(fn=_cmd_main)
 
     p = sub.add_parser("collect", help="collect scripted trajectories into a dataset")
@@ -127,6 +227,17 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--out", default=None, help="PNG path (default: outputs/tasks/<task>.png)")
     show.add_argument("--max", type=int, default=12, help="instances to show")
     p.set_defaults(fn=_cmd_tasks)
+
+    _add_run_parser(sub)
+
+    from vp2.training import command as train_command
+
+    p = sub.add_parser("train", help="train a video prediction model on a collected dataset",
+                       description="Train a video prediction model on a collected dataset "
+                                   "(docs/models.md). Continue a run with the same command "
+                                   "and --resume.")
+    train_command.configure_parser(p)
+    p.set_defaults(fn=train_command.run_from_args)
     return parser
 
 
@@ -134,6 +245,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("OpenGL").setLevel(logging.WARNING)
     try:
         return args.fn(args)
     except (ValueError, FileExistsError, FileNotFoundError) as exc:

@@ -48,9 +48,25 @@ from vp2.utils.io import write_json_atomic
 
 log = logging.getLogger(__name__)
 
+
+def _lpips_factory(net: str) -> Callable[[torch.device], PerceptualLoss]:
+    def factory(device: torch.device) -> PerceptualLoss:
+        # Imported when used: the metrics stage sits downstream of training, and LPIPS is
+        # the one piece of it training shares (frozen weights from local files).
+        from vp2.metrics.lpips import lpips_loss
+
+        return lpips_loss(net, device)
+
+    return factory
+
+
 #: Perceptual losses selectable by name in :class:`TrainConfig` (``perceptual="lpips_vgg"``):
-#: name -> factory ``(device) -> PerceptualLoss``. Filled by the metrics stage when it exists.
-PERCEPTUAL_LOSSES: dict[str, Callable[[torch.device], PerceptualLoss]] = {}
+#: name -> factory ``(device) -> PerceptualLoss``. ``lpips`` (AlexNet) and ``lpips_vgg`` are
+#: :class:`vp2.metrics.LPIPS`; their weights must be on disk (docs/metrics.md).
+PERCEPTUAL_LOSSES: dict[str, Callable[[torch.device], PerceptualLoss]] = {
+    "lpips": _lpips_factory("alex"),
+    "lpips_vgg": _lpips_factory("vgg"),
+}
 
 # Fields that may change when resuming: how long and how the run is observed, not what it
 # computes.

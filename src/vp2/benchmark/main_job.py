@@ -1,0 +1,156 @@
+"""The README's main job: a real, small evaluation on the shipped defaults (``vp2 main``).
+
+It runs the benchmark (:func:`vp2.benchmark.run_benchmark`) for each of a few agents on the
+first instance(s) of every task category of the shipped suite:
+
+* the shipped small model (:data:`SHIPPED_MODEL`, if its checkpoint is in the package),
+* the repeat-last-frame baseline (a lower bound: every plan gets the same cost),
+* the random-action agent (a lower bound that ignores observations),
+
+and writes one run directory per agent under ``out`` (trials, GIFs, summaries, resumable),
+``tasks.png`` (a contact sheet of the tasks' start images) and ``main.md``: one table with a
+column per agent. Default sizes keep it within 15 minutes on a 2-core CPU; the deviations
+from the SPEC protocol (one seed, the model's planner samples) are printed with the table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from importlib import resources
+from pathlib import Path
+
+from vp2.benchmark.results import Summary
+from vp2.benchmark.runner import RunConfig, RunResult, run_benchmark
+from vp2.utils.io import atomic_path
+
+log = logging.getLogger(__name__)
+
+#: The shipped small model: ``(registered name, checkpoint file in vp2/assets/models)``.
+SHIPPED_MODEL = ("svg_prime", "svg_prime_tiny_robodesk.pt")
+#: The environment the shipped model was trained on (it runs only on that env's tasks).
+SHIPPED_MODEL_ENV = "robodesk"
+
+
+def shipped_model_spec() -> str | None:
+    """``NAME:CHECKPOINT`` of the shipped small model, or ``None`` if it is not installed."""
+    name, file = SHIPPED_MODEL
+    path = Path(str(resources.files("vp2") / "assets" / "models" / file))
+    return f"{name}:{path}" if path.is_file() else None
+
+
+@dataclasses.dataclass(frozen=True)
+class MainJobConfig:
+    """Settings of ``vp2 main`` (one field per flag).
+
+    Attributes:
+        out: Output directory.
+        num_instances: First instances of each task category.
+        seeds: Control-run seeds.
+        tasks: Task categories or environment names (empty: all 11).
+        model_samples: Planner samples per step for the learned model (``None``: SPEC 200/800).
+            Lower by default so that the model's forward passes fit the time budget on a CPU.
+        workers: Trial processes.
+        agents: Which of ``"model"``, ``"repeat_last_frame"``, ``"random"`` to run.
+        resume: Continue the run directories instead of refusing existing ones.
+        suite: Task suite file (``None``: the shipped suite).
+        num_steps: Control steps per trial (SPEC: 15; fewer only for tests).
+    """
+
+    out: str = "outputs/main"
+    num_instances: int = 1
+    seeds: tuple[int, ...] = (0,)
+    tasks: tuple[str, ...] = ()
+    model_samples: int | None = 50
+    workers: int = 2
+    agents: tuple[str, ...] = ("model", "repeat_last_frame", "random")
+    resume: bool = True
+    suite: str | None = None
+    num_steps: int = 15
+
+
+def _run_configs(config: MainJobConfig) -> dict[str, RunConfig]:
+    common = dict(tasks=config.tasks, num_instances=config.num_instances, seeds=config.seeds,
+                  workers=config.workers, resume=config.resume, max_retries=1,
+                  suite=config.suite, num_steps=config.num_steps)
+    out = Path(config.out)
+    runs: dict[str, RunConfig] = {}
+    if "model" in config.agents:
+        spec = shipped_model_spec()
+        env = SHIPPED_MODEL_ENV
+        model_tasks = tuple(t for t in config.tasks if t == env or t.startswith(env + "/"))
+        if spec is None:
+            log.warning("the shipped model is not installed (vp2/assets/models); skipping it")
+        elif config.tasks and not model_tasks:
+            log.info("no %s task selected: the shipped model is not run", env)
+        else:
+            runs[SHIPPED_MODEL[0]] = RunConfig(
+                model=spec, out=str(out / "model"), num_samples=config.model_samples,
+                **{**common, "tasks": model_tasks or (env,)})
+    if "repeat_last_frame" in config.agents:
+        runs["repeat_last_frame"] = RunConfig(
+            model="repeat_last_frame", out=str(out / "repeat_last_frame"), **common)
+    if "random" in config.agents:
+        runs["random actions"] = RunConfig(
+            model="none", agent="random", out=str(out / "random"), save_gifs=False, **common)
+    return runs
+
+
+def _cell(summary: Summary, task: str) -> str:
+    for row in summary.tasks:
+        if row.task == task:
+            return f"{100 * row.mean:.0f}% ({row.num_trials})"
+    return "-"
+
+
+def comparison_table(results: dict[str, RunResult]) -> str:
+    """Markdown: one row per task category, one column per agent (success, trials)."""
+    names = list(results)
+    tasks: list[str] = []
+    for r in results.values():
+        tasks += [row.task for row in r.summary.tasks if row.task not in tasks]
+    lines = ["| task | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    for task in tasks:
+        lines.append(f"| {task} | " + " | ".join(_cell(results[n].summary, task) for n in names)
+                     + " |")
+    lines.append("| **mean** | " + " | ".join(f"**{100 * results[n].summary.mean:.0f}%**"
+                                               for n in names) + " |")
+    notes = []
+    for name, r in results.items():
+        dev = r.config.deviations()
+        if dev:
+            notes.append(f"- {name}: not the SPEC protocol: {'; '.join(dev)}")
+        if r.num_errors:
+            notes.append(f"- {name}: {r.num_errors} trial(s) ended in an error "
+                         f"(see {r.run_dir / 'trials.jsonl'})")
+    return "\n".join(lines + ([""] + notes if notes else []))
+
+
+def run_main_job(config: MainJobConfig, gallery: bool = True) -> tuple[str, Path]:
+    """Runs the main job; returns the comparison table and the path of ``main.md``."""
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if gallery:
+        from vp2.envs.gallery import render_gallery
+
+        render_gallery(out)
+    results: dict[str, RunResult] = {}
+    timings: dict[str, float] = {}
+    for name, run_config in _run_configs(config).items():
+        print(f"== {name}: {run_config.out}", flush=True)
+        t0 = time.perf_counter()
+        results[name] = run_benchmark(run_config)
+        timings[name] = time.perf_counter() - t0
+    table = comparison_table(results)
+    took = ", ".join(f"{n} {t / 60:.1f} min" for n, t in timings.items())
+    text = (f"# vp2 main: success per task category\n\n{table}\n\n"
+            f"Success = the task's criterion held at some step of a 15-step trial "
+            f"(cell: success rate (trials)). Wall time: {took}.\n\n"
+            + "\n".join(f"- {n}: `{r.run_dir}` (summary.md, trials.jsonl, gifs/)"
+                        for n, r in results.items()) + "\n")
+    path = out / "main.md"
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text)
+    return table, path
+

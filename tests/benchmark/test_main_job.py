@@ -1,0 +1,49 @@
+"""The README's main job: runs each agent, resumes, and tabulates them side by side."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tests.benchmark import tiny_suite_path
+from vp2.benchmark import main_job
+from vp2.benchmark.main_job import MainJobConfig, run_main_job
+from vp2.benchmark.results import read_trials
+
+
+def _config(tmp_path: Path, **overrides) -> MainJobConfig:
+    kwargs = dict(out=str(tmp_path / "main"), suite=str(tiny_suite_path()), num_steps=3,
+                  workers=1, agents=("repeat_last_frame", "random"))
+    kwargs.update(overrides)
+    return MainJobConfig(**kwargs)
+
+
+def test_main_job_runs_each_agent_and_writes_the_table(tmp_path):
+    table, path = run_main_job(_config(tmp_path), gallery=False)
+    rows = [line for line in table.splitlines() if line.startswith("| tabletop/")]
+    assert rows == [line for line in rows if line.count("|") == 4]
+    assert len(rows) == 1 and rows[0].startswith("| tabletop/push_sphere |")
+    assert "repeat_last_frame" in table.splitlines()[0] and "random actions" in table
+    assert path.read_text().count("| tabletop/push_sphere |") == 1
+    for name in ("repeat_last_frame", "random"):
+        records = read_trials(tmp_path / "main" / name)
+        assert [(r["task"], r["instance"], r["seed"]) for r in records] == [
+            ("tabletop/push_sphere", 0, 0)
+        ]
+        assert len(records[0]["success_steps"]) == 3
+    # Re-running resumes: nothing is run twice.
+    run_main_job(_config(tmp_path), gallery=False)
+    assert len(read_trials(tmp_path / "main" / "random")) == 1
+
+
+def test_shipped_model_runs_only_on_its_env(tmp_path, monkeypatch):
+    monkeypatch.setattr(main_job, "shipped_model_spec", lambda: "svg_prime:/x.pt")
+    runs = main_job._run_configs(  # noqa: SLF001
+        _config(tmp_path, agents=("model",), tasks=("tabletop",)))
+    assert runs == {}  # no RoboDesk task selected
+    runs = main_job._run_configs(  # noqa: SLF001
+        _config(tmp_path, agents=("model", "random"), tasks=("robodesk/push_red", "tabletop")))
+    assert runs["svg_prime"].tasks == ("robodesk/push_red",)
+    assert runs["svg_prime"].num_samples == 50
+    assert runs["random actions"].tasks == ("robodesk/push_red", "tabletop")
+    runs = main_job._run_configs(MainJobConfig(agents=("model",)))  # noqa: SLF001
+    assert runs["svg_prime"].tasks == ("robodesk",)
