@@ -21,7 +21,7 @@ import time
 
 import torch
 
-from vp2.models import VideoPredictor, all_variants, build_model
+from vp2.models import VideoPredictor, all_variants, build_model, parse_overrides
 
 #: Paper, Table 3: median forward time (s) at batch 200 on one Titan RTX.
 PAPER = {
@@ -30,6 +30,8 @@ PAPER = {
     ("svg_prime", "m0.5k0.5"): 0.52,
     ("svg_prime", "m1k1"): 1.21,
     ("svg_prime", "m2k2"): 3.58,
+    # The MCVD paper model (100 sampling steps), VP² paper text: ">10x slower than any other".
+    ("mcvd", "default"): 220.0,
 }
 
 
@@ -72,6 +74,14 @@ def main() -> None:
     parser.add_argument(
         "--variants", nargs="*", default=None, help="name:preset (default: all registered)"
     )
+    parser.add_argument(
+        "--override",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="config override for every variant, e.g. sampling_steps=10 (MCVD) or "
+        "decoding_iterations=3 (MaskViT)",
+    )
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -90,12 +100,13 @@ def main() -> None:
     print(head)
     print("|---" * (head.count("|") - 1) + "|")
     for name, preset in variants:
-        model = build_model(name, preset, action_dim=5).to(device)
+        model = build_model(name, preset, action_dim=5, **parse_overrides(args.override)).to(device)
         params = model.num_parameters()
         times = time_predict(model, args.batch, args.repeats)
         del model
         median = statistics.median(times)
-        row = f"| {name} | {preset} | {params / 1e6:.2f}M | {median:.2f} |"
+        label = preset + "".join(f" {o}" for o in args.override)
+        row = f"| {name} | {label} | {params / 1e6:.2f}M | {median:.2f} |"
         if extrapolate:
             row += f" {median * 200 / args.batch:.1f} |"
         paper = PAPER.get((name, preset))

@@ -21,6 +21,8 @@ from vp2.models.base import (
     predict_in_chunks,
 )
 from vp2.models.fitvid import FitVid, FitVidConfig
+from vp2.models.maskvit import MaskViT, MaskViTConfig, MaskViTTokenizer, MaskViTTokenizerConfig
+from vp2.models.mcvd import MCVD, MCVDConfig
 from vp2.models.registry import (
     CHECKPOINT_FORMAT,
     MODELS,
@@ -38,6 +40,7 @@ from vp2.models.registry import (
     preset_names,
     read_checkpoint,
 )
+from vp2.models.struct_vrnn import StructVRNN, StructVRNNConfig
 from vp2.models.svg_prime import SVGPrime, SVGPrimeConfig
 
 __all__ = [
@@ -49,9 +52,17 @@ __all__ = [
     "FitVid",
     "FitVidConfig",
     "LossOutput",
+    "MCVD",
+    "MCVDConfig",
+    "MaskViT",
+    "MaskViTConfig",
+    "MaskViTTokenizer",
+    "MaskViTTokenizerConfig",
     "PerceptualLoss",
     "SVGPrime",
     "SVGPrimeConfig",
+    "StructVRNN",
+    "StructVRNNConfig",
     "TrainingDefaults",
     "VideoPredictionModel",
     "VideoPredictor",

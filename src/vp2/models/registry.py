@@ -22,6 +22,9 @@ import torch
 
 from vp2.models.base import VideoPredictor
 from vp2.models.fitvid import FitVid
+from vp2.models.maskvit import MaskViT, MaskViTTokenizer
+from vp2.models.mcvd import MCVD
+from vp2.models.struct_vrnn import StructVRNN
 from vp2.models.svg_prime import SVGPrime
 
 #: Format tag of checkpoints written by :mod:`vp2.training` (and read by :func:`load_model`).
@@ -36,6 +39,18 @@ class ModelEntry:
     presets: Mapping[str, Mapping[str, Any]]
     default_preset: str
 
+
+#: Tokenizer size presets, shared by ``maskvit_tokenizer`` and the ``maskvit`` presets.
+MASKVIT_TOKENIZER_PRESETS: dict[str, dict[str, Any]] = {
+    "small": {"channels": 32, "num_res_blocks": 1, "codebook_size": 512, "disc_channels": 32},
+    "tiny": {
+        "channels": 16,
+        "num_res_blocks": 1,
+        "codebook_size": 64,
+        "code_dim": 16,
+        "disc_channels": 16,
+    },
+}
 
 MODELS: dict[str, ModelEntry] = {
     SVGPrime.name: ModelEntry(
@@ -56,6 +71,84 @@ MODELS: dict[str, ModelEntry] = {
             "default": {},
             "small_encoder": {"g_dim": 64, "rnn_size": 128},
             "mini": {"g_dim": 32, "rnn_size": 64, "num_base_filters": 8},
+        },
+        default_preset="default",
+    ),
+    StructVRNN.name: ModelEntry(
+        StructVRNN,
+        presets={
+            # The paper's model (K = 64 keypoints, LSTM 512 x 2); ~7.5 M parameters here.
+            "default": {},
+            "small": {
+                "num_keypoints": 32,
+                "filters": 16,
+                "decoder_filters": 64,
+                "rnn_size": 128,
+                "rnn_layers": 1,
+            },
+            # Trains on a CPU in minutes (tests, demos).
+            "tiny": {
+                "num_keypoints": 8,
+                "filters": 8,
+                "decoder_filters": 32,
+                "rnn_size": 32,
+                "rnn_layers": 1,
+            },
+        },
+        default_preset="default",
+    ),
+    MCVD.name: ModelEntry(
+        MCVD,
+        presets={
+            # The paper's U-Net (base 64, [1, 2, 3, 4], attention at 32/16/8), 100 steps.
+            "default": {},
+            "small": {
+                "base_channels": 32,
+                "channel_mult": (1, 2, 2, 2),
+                "num_res_blocks": 1,
+                "attn_resolutions": (8,),
+                "spade_hidden": 32,
+            },
+            # Trains on a CPU in minutes; 10 sampling steps (override sampling_steps=...).
+            "tiny": {
+                "base_channels": 16,
+                "channel_mult": (1, 2, 2),
+                "num_res_blocks": 1,
+                "attn_resolutions": (),
+                "spade_hidden": 16,
+                "dropout": 0.0,
+                "sampling_steps": 10,
+            },
+        },
+        default_preset="default",
+    ),
+    MaskViTTokenizer.name: ModelEntry(
+        MaskViTTokenizer,
+        presets={
+            "default": {},
+            "small": dict(MASKVIT_TOKENIZER_PRESETS["small"]),
+            "tiny": dict(MASKVIT_TOKENIZER_PRESETS["tiny"]),
+        },
+        default_preset="default",
+    ),
+    MaskViT.name: ModelEntry(
+        MaskViT,
+        presets={
+            # Pair each with the tokenizer preset of the same name (or a trained one via
+            # tokenizer_checkpoint=..., which brings its own architecture).
+            "default": {},
+            "small": {
+                "dim": 256,
+                "depth": 4,
+                "heads": 4,
+                "tokenizer": dict(MASKVIT_TOKENIZER_PRESETS["small"]),
+            },
+            "tiny": {
+                "dim": 64,
+                "depth": 2,
+                "heads": 2,
+                "tokenizer": dict(MASKVIT_TOKENIZER_PRESETS["tiny"]),
+            },
         },
         default_preset="default",
     ),
