@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tests.benchmark import tiny_suite_path
-from vp2.benchmark.agent import PlannerConfig, PlanningAgent
+from vp2.benchmark.agent import ClassifierRegistry, PlannerConfig, PlanningAgent
 from vp2.benchmark.trial import ControlTrial, trial_seed
 from vp2.data.suite import TaskSuite
 from vp2.models.reference import RandomActions, RepeatLastFrame
@@ -73,11 +73,17 @@ def test_stop_on_success_ends_the_trial_early(suite, tabletop_env):
     assert result.success and result.success_steps == [True] and len(result.actions) == 1
 
 
-def test_robodesk_without_classifier_records_pixel_only(suite):
+def test_robodesk_cost_kind_follows_the_classifier_registry(suite):
     inst = suite.get("robodesk/push_red", 0)
+    # The shipped classifier of push_red is registered by default: the SPEC cost.
     result = ControlTrial(inst, _agent(5), seed=0, num_steps=2).run()
-    assert result.cost_kind == "pixel_only" and result.record()["cost"] == "pixel_only"
+    assert result.cost_kind == "pixel+classifier" and result.record()["cost"] == "pixel+classifier"
     assert result.actions.shape == (2, 5)
+    # Without a registered classifier: pixels only, and the record says so.
+    bare = PlanningAgent(RepeatLastFrame(5), PlannerConfig(num_samples=8),
+                         classifiers=ClassifierRegistry())
+    result = ControlTrial(inst, bare, seed=0, num_steps=2).run()
+    assert result.cost_kind == "pixel_only" and result.record()["cost"] == "pixel_only"
 
 
 def test_random_actions_baseline(suite, tabletop_env):

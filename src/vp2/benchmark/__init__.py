@@ -6,6 +6,8 @@
   parallel, writing ``trials.jsonl``, GIFs and a summary.
 - ``results.py``: reading records, success rates over seeds, oracle normalisation.
 - ``plugins.py``: the model to benchmark from ``package.module:factory`` or a YAML file.
+- ``classifiers.py``: the RoboDesk success classifiers (training, the shipped files, which
+  are registered into :data:`CLASSIFIERS` on import).
 
 See ``docs/benchmark.md``.
 """
@@ -23,6 +25,7 @@ from vp2.benchmark.agent import (
     build_optimizer,
     planner_settings,
 )
+from vp2.benchmark.classifiers import register_shipped_classifiers
 from vp2.benchmark.plugins import PluginError, build_model, load_plugin, model_identity
 from vp2.benchmark.results import (
     Summary,
@@ -42,6 +45,10 @@ from vp2.benchmark.runner import (
     select_instances,
 )
 from vp2.benchmark.trial import NUM_CONTROL_STEPS, ControlTrial, TrialResult, trial_seed
+
+# The RoboDesk success classifiers shipped in vp2/assets/classifiers, registered (not loaded)
+# into CLASSIFIERS; a task without a file keeps the pixel_only fallback.
+register_shipped_classifiers(CLASSIFIERS)
 
 __all__ = [
     "CLASSIFIERS",

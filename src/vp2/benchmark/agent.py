@@ -68,8 +68,9 @@ ClassifierLoader = Callable[[torch.device], FrameClassifier]
 class ClassifierRegistry:
     """Success classifiers per task, registered by whoever provides them.
 
-    The benchmark ships none yet; a later release registers the trained RoboDesk classifiers
-    here. Loaded classifiers are cached per ``(task, device)`` in the process.
+    The classifiers shipped with the package are registered here when :mod:`vp2.benchmark` is
+    imported (:func:`vp2.benchmark.classifiers.register_shipped_classifiers`). Loaded
+    classifiers are cached per ``(task, device)`` in the process.
     """
 
     def __init__(self) -> None:
