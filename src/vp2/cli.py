@@ -30,6 +30,28 @@ def _cmd_main(args: argparse.Namespace) -> int:
     return 0
 
 
+def _executor(args: argparse.Namespace):
+    """The executor of a data command's ``--executor``/``--address``/... flags."""
+    from vp2.utils.executors import make_executor
+
+    return make_executor(args.executor, workers=args.workers, address=args.address,
+                         num_cpus_per_worker=args.num_cpus_per_worker,
+                         num_gpus_per_worker=args.num_gpus_per_worker)
+
+
+def _add_executor_flags(p: argparse.ArgumentParser, gpus_default: float = 0.0) -> None:
+    p.add_argument("--executor", choices=["local", "ray"], default="local",
+                   help="where work runs: local worker processes, or a Ray cluster "
+                        "(docs/scale-out.md)")
+    p.add_argument("--address", default=None,
+                   help="with --executor ray: 'auto' or the head's HOST:PORT (default: a "
+                        "private Ray instance on this machine, on loopback)")
+    p.add_argument("--num-cpus-per-worker", type=float, default=1.0,
+                   help="with --executor ray: CPUs each actor reserves")
+    p.add_argument("--num-gpus-per-worker", type=float, default=gpus_default,
+                   help="with --executor ray: GPUs each actor reserves (fractions allowed)")
+
+
 def _cmd_collect(args: argparse.Namespace) -> int:
     from vp2.data.collect import CollectionConfig, collect
 
@@ -43,7 +65,8 @@ def _cmd_collect(args: argparse.Namespace) -> int:
         chunk_size=args.chunk_size,
     )
     out = args.out or f"data/{args.env}-{n}x-{args.image_size}px"
-    root = collect(config, out, workers=args.workers)
+    with _executor(args) as executor:
+        root = collect(config, out, workers=args.workers, executor=executor)
     print(f"dataset: {root} ({config.total} trajectories)")
     return 0
 
@@ -52,7 +75,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from vp2.data.render import rerender
 
     out = args.out or f"{str(args.dataset).rstrip('/')}-{args.size}px"
-    print(f"dataset: {rerender(args.dataset, out, args.size, workers=args.workers)}")
+    with _executor(args) as executor:
+        root = rerender(args.dataset, out, args.size, workers=args.workers, executor=executor)
+    print(f"dataset: {root}")
     return 0
 
 
@@ -65,7 +90,9 @@ def _cmd_tasks(args: argparse.Namespace) -> int:
             counts = {t: counts[t] for t in args.tasks}
         if args.count:
             counts = dict.fromkeys(counts, args.count)
-        suite = suite_lib.generate_suite(counts, seed=args.seed, workers=args.workers)
+        with _executor(args) as executor:
+            suite = suite_lib.generate_suite(counts, seed=args.seed, workers=args.workers,
+                                             executor=executor)
         out = Path(args.out)
         suite.save(out)
         print(f"task suite: {out} ({len(suite)} instances)")
@@ -110,6 +137,10 @@ def run_config_from_args(args: argparse.Namespace):
         num_steps=args.num_steps,
         stop_on_success=args.stop_on_success,
         workers=args.workers,
+        executor=args.executor,
+        address=args.address,
+        num_cpus_per_worker=args.num_cpus_per_worker,
+        num_gpus_per_worker=args.num_gpus_per_worker,
         device=args.device,
         max_retries=args.max_retries,
         resume=args.resume,
@@ -157,7 +188,8 @@ def _add_run_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cost", choices=["auto", "spec", "pixel_only"], default="auto")
     p.add_argument("--num-steps", type=int, default=15, help="control steps per trial")
     p.add_argument("--stop-on-success", action="store_true")
-    p.add_argument("--workers", type=int, default=1, help="trial processes")
+    p.add_argument("--workers", type=int, default=1, help="trial processes (Ray: actors)")
+    _add_executor_flags(p)
     p.add_argument("--device", help="torch device (default: CUDA if available)")
     p.add_argument("--max-retries", type=int, default=1)
     p.add_argument("--resume", action="store_true", help="continue the run directory")
@@ -201,7 +233,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--image-size", type=int, default=64)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--chunk-size", type=int, default=10, help="trajectories per shard")
-    p.add_argument("--workers", type=int, default=None, help="worker processes (default: cores)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes (default: cores; Ray: as many actors as fit)")
+    _add_executor_flags(p)
     p.set_defaults(fn=_cmd_collect)
 
     p = sub.add_parser("render", help="re-render a dataset at another resolution")
@@ -209,6 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=int, required=True)
     p.add_argument("--out", help="output dataset (default: <dataset>-<size>px)")
     p.add_argument("--workers", type=int, default=None)
+    _add_executor_flags(p)
     p.set_defaults(fn=_cmd_render)
 
     p = sub.add_parser("tasks", help="the task suite: generate, list, show")
@@ -219,6 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--tasks", nargs="+", help="only these task categories")
     g.add_argument("--count", type=int, help="instances per category (default: SPEC §2)")
     g.add_argument("--workers", type=int, default=None)
+    _add_executor_flags(g)
     lst = tsub.add_parser("list", help="instances per task category")
     lst.add_argument("--suite", help="suite file (default: the shipped suite)")
     show = tsub.add_parser("show", help="contact sheet of start and goal images")
@@ -238,17 +274,27 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and --resume.")
     train_command.configure_parser(p)
     p.set_defaults(fn=train_command.run_from_args)
+
+    from vp2.benchmark import classifiers
+
+    p = sub.add_parser("train-classifier", help="train RoboDesk success classifiers",
+                       description="Train the per-task RoboDesk success classifiers of the "
+                                   "planning cost on a collected dataset (docs/benchmark.md).")
+    classifiers.configure_parser(p)
+    p.set_defaults(fn=classifiers.run_from_args)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from vp2.data.storage import DatasetError
+
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("OpenGL").setLevel(logging.WARNING)
     try:
         return args.fn(args)
-    except (ValueError, FileExistsError, FileNotFoundError) as exc:
+    except (ValueError, FileExistsError, FileNotFoundError, DatasetError) as exc:
         print(f"vp2 {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

@@ -21,6 +21,11 @@ process plans serially, and a model that runs its own process pool (the simulato
 processes would oversubscribe the cores). Model-level parallelism is for a single process:
 ``workers=1`` and e.g. ``model_args={"num_workers": 4}`` to make each of the oracle's
 planning steps faster (lower latency per trial, the same throughput).
+
+With ``executor="ray"`` the trials run on Ray actors instead (:mod:`vp2.utils.executors`,
+docs/scale-out.md), one simulator and one model replica per actor, initialised like a pool
+worker; results stream back to this process, which still alone writes files, so a run
+resumes the same way under either executor.
 """
 
 from __future__ import annotations
@@ -64,6 +69,7 @@ from vp2.data.suite import TaskInstance, TaskSuite
 from vp2.envs import ENV_TASKS, TASK_NAMES, split_name
 from vp2.envs.base import Env
 from vp2.planning import OPTIMIZERS
+from vp2.utils.executors import EXECUTORS, RayExecutor, WorkerLost
 from vp2.utils.io import atomic_path, remove_stale_temporaries, write_json_atomic
 
 log = logging.getLogger(__name__)
@@ -121,7 +127,16 @@ class RunConfig:
         num_steps: Control steps per trial (``--num-steps``); SPEC: 15. Fewer only for tests.
         stop_on_success: End a trial at its first success (``--stop-on-success``); the
             outcome is the same, later frames are not recorded.
-        workers: Trial processes (``--workers``); 1 runs trials in this process.
+        workers: Trial processes (``--workers``); 1 runs trials in this process. With
+            ``executor="ray"``: actors, each with its own simulator and model replica.
+        executor: Where trials run (``--executor``): ``"local"`` (worker processes on this
+            machine) or ``"ray"`` (actors on a Ray cluster, docs/scale-out.md). Not a protocol
+            field: a run may be resumed under another executor.
+        address: Ray cluster to use (``--address``): ``"auto"``, ``HOST:PORT``, or ``None``
+            for a private instance on this machine.
+        num_cpus_per_worker: CPUs each Ray actor reserves (``--num-cpus-per-worker``).
+        num_gpus_per_worker: GPUs each Ray actor reserves for its model replica, fractions
+            allowed (``--num-gpus-per-worker``).
         device: Torch device of models and planning (``--device``); ``None``: CUDA if
             available, else CPU.
         max_retries: Extra attempts of a crashed trial (``--max-retries``).
@@ -153,6 +168,10 @@ class RunConfig:
     num_steps: int = NUM_CONTROL_STEPS
     stop_on_success: bool = False
     workers: int = 1
+    executor: str = "local"
+    address: str | None = None
+    num_cpus_per_worker: float = 1.0
+    num_gpus_per_worker: float = 0.0
     device: str | None = None
     max_retries: int = 1
     resume: bool = False
@@ -182,6 +201,12 @@ class RunConfig:
             raise ValueError(f"num_samples must be >= 1, got {self.num_samples}")
         if self.workers < 1 or self.max_retries < 0:
             raise ValueError("workers must be >= 1 and max_retries >= 0")
+        if self.executor not in EXECUTORS:
+            raise ValueError(f"executor must be one of {EXECUTORS}, got {self.executor!r}")
+        if self.address is not None and self.executor != "ray":
+            raise ValueError("address is for executor='ray'")
+        if self.num_cpus_per_worker < 0 or self.num_gpus_per_worker < 0:
+            raise ValueError("num_cpus_per_worker and num_gpus_per_worker must be >= 0")
         if self.retry_errors and not self.resume:
             raise ValueError("retry_errors needs resume")
         for name in self.tasks:
@@ -654,6 +679,55 @@ def _execute_in_pool(
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+class _LiveQueue:
+    """Iterator over the jobs, then whatever the driver puts into ``requeue`` later (a Ray
+    executor polls it again after every result)."""
+
+    def __init__(self, jobs: list[_Job], requeue: collections.deque[_Job]) -> None:
+        self.jobs = collections.deque(jobs)
+        self.requeue = requeue
+
+    def __iter__(self) -> _LiveQueue:
+        return self
+
+    def __next__(self) -> _Job:
+        if self.requeue:
+            self.jobs.extend(self.requeue)
+            self.requeue.clear()
+        if not self.jobs:
+            raise StopIteration
+        return self.jobs.popleft()
+
+
+def _execute_on_ray(
+    jobs: list[_Job], config: RunConfig, requeue: collections.deque[_Job]
+) -> Iterator[tuple[_Job, _Outcome | None]]:
+    """Runs jobs on Ray actors, each initialised like a pool worker (one simulator and one
+    model replica per actor); yields ``(job, outcome)``, outcome ``None`` if the job's actor
+    (or its node) died every time it ran. Each actor runs one trial at a time, so a death is
+    charged to the trial that ran, and a trial that lost an innocent worker (a node went
+    away) is re-run elsewhere by the executor before it counts as an attempt here."""
+    executor = RayExecutor(
+        address=config.address,
+        workers=config.workers,
+        num_cpus=config.num_cpus_per_worker,
+        num_gpus=config.num_gpus_per_worker,
+    )
+    if config.device is None and config.num_gpus_per_worker == 0:
+        # An actor without a GPU share must not take a GPU its node has (Ray may leave it
+        # visible): the model replicas of such a run belong on the CPU.
+        config = dataclasses.replace(config, device="cpu")
+    with executor:
+        results = executor.imap_unordered(
+            _run_job, _LiveQueue(jobs, requeue), _init_worker, (config,), on_lost="yield"
+        )
+        try:
+            for job, outcome in results:
+                yield job, None if isinstance(outcome, WorkerLost) else outcome
+        finally:
+            results.close()
+
+
 def run_benchmark(config: RunConfig) -> RunResult:
     """Runs (or resumes) a benchmark run; see the module docstring.
 
@@ -689,7 +763,9 @@ def run_benchmark(config: RunConfig) -> RunResult:
     requeue: collections.deque[_Job] = collections.deque()
     num_run = successes = finished = 0
     bar = tqdm(total=len(jobs), unit="trial", desc="vp2 run", disable=not config.progress)
-    if config.workers > 1:
+    if config.executor == "ray":
+        stream = _execute_on_ray(jobs, config, requeue)
+    elif config.workers > 1:
         stream = _execute_in_pool(jobs, config, requeue)
     else:
         stream = _retrying_in_process(jobs, config, requeue)

@@ -28,8 +28,8 @@ from tqdm.auto import tqdm
 from vp2.data import storage
 from vp2.data.policies import data_noise_sigma, make_data_env, make_policy, stream_names
 from vp2.envs.base import Env
+from vp2.utils.executors import Executor, LocalExecutor
 from vp2.utils.io import remove_stale_temporaries, write_json_atomic
-from vp2.utils.parallel import default_workers, imap_unordered
 
 log = logging.getLogger(__name__)
 
@@ -200,6 +200,7 @@ def collect(
     out: str | Path,
     workers: int | None = None,
     progress: bool = True,
+    executor: Executor | None = None,
 ) -> Path:
     """Collects (or completes) a dataset; returns its directory.
 
@@ -209,6 +210,9 @@ def collect(
             shards are collected (resume); with another config, ``FileExistsError``.
         workers: worker processes (default: one per core; ``1`` runs in this process).
         progress: show a progress bar with trajectories/s.
+        executor: where chunks run (:mod:`vp2.utils.executors`; default: a
+            :class:`~vp2.utils.executors.LocalExecutor` with ``workers``). This process
+            alone writes the shards, whichever executor ran them.
     """
     config.validate()
     root = Path(out)
@@ -236,7 +240,7 @@ def collect(
             path.unlink()
         todo.append(chunk)
 
-    workers = default_workers() if workers is None else workers
+    executor = LocalExecutor(workers) if executor is None else executor
     done_before = config.total - sum(c["count"] for c in todo)
     config_json = config.to_json()
     start = time.perf_counter()
@@ -245,8 +249,8 @@ def collect(
         disable=not progress, smoothing=0.1,
     ) as bar:
         env_meta = {"env": config.env, "collection": config_json}
-        jobs = ((config_json, chunk) for chunk in todo)
-        for (_, chunk), trajectories in imap_unordered(_collect_chunk, jobs, workers=min(workers, max(1, len(todo)))):
+        jobs = [(config_json, chunk) for chunk in todo]
+        for (_, chunk), trajectories in executor.imap_unordered(_collect_chunk, jobs):
             storage.write_shard(
                 storage.shard_path(root, chunk["chunk"]), trajectories, env_meta, config.valid_every
             )

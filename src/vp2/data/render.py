@@ -12,8 +12,8 @@ from tqdm.auto import tqdm
 from vp2.data import storage
 from vp2.envs import make_env_from_metadata
 from vp2.envs.base import Env
+from vp2.utils.executors import Executor, LocalExecutor
 from vp2.utils.io import remove_stale_temporaries, write_json_atomic
-from vp2.utils.parallel import default_workers, imap_unordered
 
 _ENVS: dict[tuple[str, int], Env] = {}
 
@@ -39,11 +39,18 @@ def _render_shard(job: tuple[str, int]) -> list[storage.Trajectory]:
 
 
 def rerender(
-    src: str | Path, out: str | Path, size: int, workers: int | None = None, progress: bool = True
+    src: str | Path,
+    out: str | Path,
+    size: int,
+    workers: int | None = None,
+    progress: bool = True,
+    executor: Executor | None = None,
 ) -> Path:
     """Writes a copy of dataset ``src`` with observations rendered at ``size``×``size``.
 
-    Resumable like collection: shards already rendered into ``out`` are kept.
+    Resumable like collection: shards already rendered into ``out`` are kept. ``executor``
+    runs the shards (default: local worker processes, ``workers`` of them); the source
+    dataset must be readable at the same path on every worker's machine.
     """
     if size <= 0:
         raise ValueError(f"size must be positive, got {size}")
@@ -76,14 +83,14 @@ def rerender(
             except storage.DatasetError:
                 dst.unlink()
         todo.append(chunk)
-    workers = default_workers() if workers is None else workers
+    executor = LocalExecutor(workers) if executor is None else executor
     valid_every = manifest["config"]["valid_every"]
     env_meta = {"env": manifest["config"]["env"], "collection": new_manifest["config"]}
     total = sum(c["count"] for c in manifest["chunks"])
     with tqdm(total=total, initial=total - sum(c["count"] for c in todo), unit="traj",
               desc=f"render {size}px", disable=not progress) as bar:
         jobs = [(str(storage.shard_path(src, c["chunk"])), size) for c in todo]
-        for (path, _), trajectories in imap_unordered(_render_shard, jobs, min(workers, max(1, len(jobs)))):
+        for (path, _), trajectories in executor.imap_unordered(_render_shard, jobs):
             chunk = int(Path(path).stem)
             storage.write_shard(storage.shard_path(root, chunk), trajectories, env_meta, valid_every)
             bar.update(len(trajectories))

@@ -28,8 +28,8 @@ from tqdm.auto import tqdm
 
 from vp2.envs import ROBODESK_TASKS, TABLETOP_TASKS, TASK_NAMES, make_env, split_name
 from vp2.envs.base import Env
+from vp2.utils.executors import Executor, LocalExecutor
 from vp2.utils.io import atomic_path
-from vp2.utils.parallel import default_workers, imap_unordered
 
 #: Instances per task category (SPEC §2): 30 per RoboDesk task, 25 per tabletop category.
 SUITE_COUNTS: dict[str, int] = {
@@ -255,16 +255,18 @@ def generate_suite(
     workers: int | None = None,
     progress: bool = True,
     max_attempts_factor: int = 10,
+    executor: Executor | None = None,
 ) -> TaskSuite:
     """Generates a task suite (by default the canonical one, SPEC §2).
 
     Attempts are made in batches in parallel, but accepted strictly in attempt order, so the
-    result does not depend on ``workers``.
+    result does not depend on ``workers`` or on the ``executor`` that runs them (default:
+    local worker processes, ``workers`` of them).
     """
     counts = dict(SUITE_COUNTS if counts is None else counts)
     for task in counts:
         split_name(task)
-    workers = default_workers() if workers is None else workers
+    executor = LocalExecutor(workers) if executor is None else executor
     order = sorted(counts, key=TASK_NAMES.index)
     accepted: dict[str, list[TaskInstance]] = {t: [] for t in order}
     next_attempt = dict.fromkeys(order, 0)
@@ -285,7 +287,7 @@ def generate_suite(
                 block = short + short // 4 + 1
                 jobs += [(task, seed, k) for k in range(next_attempt[task], next_attempt[task] + block)]
                 next_attempt[task] += block
-            results = {(job[0], job[2]): inst for job, inst in imap_unordered(_attempt, jobs, workers)}
+            results = {(job[0], job[2]): inst for job, inst in executor.imap_unordered(_attempt, jobs)}
             for task, _, k in jobs:  # accept strictly in attempt order
                 inst = results[(task, k)]
                 if inst is not None and len(accepted[task]) < counts[task]:
