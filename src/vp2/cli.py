@@ -282,6 +282,14 @@ def build_parser() -> argparse.ArgumentParser:
                                    "planning cost on a collected dataset (docs/benchmark.md).")
     classifiers.configure_parser(p)
     p.set_defaults(fn=classifiers.run_from_args)
+
+    from vp2.metrics import evaluate as metrics_command
+
+    p = sub.add_parser("metrics", help="perceptual metrics of a model on held-out clips",
+                       description="MSE, PSNR, SSIM, LPIPS and FVD of a model's predictions on "
+                                   "a fixed, seeded set of held-out clips (docs/metrics.md).")
+    metrics_command.configure_parser(p)
+    p.set_defaults(fn=metrics_command.run_from_args)
     return parser
 
 

@@ -1,10 +1,24 @@
-"""Metrics of predicted frames: LPIPS (AlexNet / VGG), MSE, PSNR, SSIM.
+"""Metrics of predicted frames: LPIPS (AlexNet / VGG), MSE, PSNR, SSIM, and FVD of videos.
 
-All take ``(..., 3, H, W)`` images in [0, 1] and return one value per image ``(...)``.
-:class:`LPIPS` is also the training's perceptual loss (``TrainConfig(perceptual="lpips")``).
-Its weights are read from local files, never downloaded: see ``docs/metrics.md``.
+The image metrics take ``(..., 3, H, W)`` images in [0, 1] and return one value per image
+``(...)``. :class:`LPIPS` is also the training's perceptual loss
+(``TrainConfig(perceptual="lpips")``). :class:`FrechetVideoDistance` compares two sets of
+videos with the Kinetics-400 :class:`I3D`. :func:`evaluate_model` scores a model on held-out
+clips (``vp2 metrics``). Weights are read from local files, never downloaded: see
+``docs/metrics.md``.
 """
 
+from typing import Any
+
+from vp2.metrics.fvd import (
+    FVD_RESOLUTION,
+    FrechetVideoDistance,
+    frechet_distance,
+    fvd_from_features,
+    gaussian_stats,
+    preprocess_videos,
+)
+from vp2.metrics.i3d import I3D, I3D_FILE, find_i3d_weights, random_i3d
 from vp2.metrics.image import gaussian_window, mse, psnr, ssim
 from vp2.metrics.lpips import (
     BACKBONES,
@@ -18,18 +32,43 @@ from vp2.metrics.lpips import (
     weight_dirs,
 )
 
+# The evaluation loop imports the model and data stages; loaded on first use so that
+# `from vp2.metrics import LPIPS` (used by the trainer) stays light and cycle-free.
+_EVALUATE = ("evaluate_model", "write_metrics")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EVALUATE:
+        from vp2.metrics import evaluate
+
+        return getattr(evaluate, name)
+    raise AttributeError(f"module 'vp2.metrics' has no attribute {name!r}")
+
+
 __all__ = [
     "BACKBONES",
+    "FVD_RESOLUTION",
+    "I3D",
+    "I3D_FILE",
     "LPIPS",
+    "FrechetVideoDistance",
     "WEIGHTS_ENV",
     "MissingWeightsError",
     "alexnet_features",
+    "evaluate_model",
+    "find_i3d_weights",
     "find_weights",
+    "frechet_distance",
+    "fvd_from_features",
+    "gaussian_stats",
     "gaussian_window",
     "lpips_loss",
     "mse",
+    "preprocess_videos",
     "psnr",
+    "random_i3d",
     "ssim",
     "vgg16_features",
     "weight_dirs",
+    "write_metrics",
 ]
