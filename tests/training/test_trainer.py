@@ -176,3 +176,24 @@ def test_step_batch_sampler_is_a_function_of_seed_and_step():
         assert len(set(seen)) == 9
     assert full[:3] != full[3:6]  # a new permutation each epoch
     assert list(StepBatchSampler(10, 3, seed=8, start=0, stop=9)) != full
+
+
+@pytest.mark.parametrize("half", [True, False])
+def test_exported_checkpoint_predicts_like_the_training_one(dataset, tmp_path, half):
+    from vp2.training.checkpoint import export_checkpoint
+
+    out = tmp_path / "run"
+    train(_config(dataset, out, model="svg_prime", steps=2))
+    path = export_checkpoint(out, tmp_path / "model.pt", half=half)
+    payload = torch.load(path, weights_only=True)
+    assert "optimizer" not in payload and "rng" not in payload and payload["step"] == 2
+    assert payload["exported"] == {"half": half, "from_step": 2}
+    dtypes = {v.dtype for v in payload["model"]["state_dict"].values() if v.is_floating_point()}
+    assert dtypes == ({torch.float16} if half else {torch.float32})
+    full, small = load_model(out, device="cpu"), load_model(path, device="cpu")
+    assert next(small.parameters()).dtype == torch.float32
+    g = torch.Generator().manual_seed(0)
+    context, actions = torch.rand(2, 2, 3, 32, 32, generator=g), torch.rand(2, 11, 4) * 2 - 1
+    a = full.predict(context, actions, generator=torch.Generator().manual_seed(1))
+    b = small.predict(context, actions, generator=torch.Generator().manual_seed(1))
+    torch.testing.assert_close(a, b, atol=2e-2 if half else 0, rtol=0)
