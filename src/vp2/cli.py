@@ -290,6 +290,20 @@ def build_parser() -> argparse.ArgumentParser:
                                    "a fixed, seeded set of held-out clips (docs/metrics.md).")
     metrics_command.configure_parser(p)
     p.set_defaults(fn=metrics_command.run_from_args)
+
+    from vp2.benchmark import report, study
+
+    p = sub.add_parser("report", help="self-contained HTML report of one or more runs",
+                       description="Writes one self-contained HTML page: success per task and "
+                                   "model, normalised scores, the study when metrics exist, "
+                                   "trial videos (docs/report.md).")
+    report.configure_parser(p)
+    p.set_defaults(fn=report.run_from_args)
+    p = sub.add_parser("study", help="perceptual metrics versus control success",
+                       description="Table 1 of the paper and rank correlations between each "
+                                   "metric and success over several models (docs/report.md).")
+    study.configure_parser(p)
+    p.set_defaults(fn=study.run_from_args)
     return parser
 
 

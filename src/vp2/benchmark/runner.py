@@ -822,6 +822,12 @@ def run_benchmark(config: RunConfig) -> RunResult:
     write_json_atomic(run_dir / SUMMARY_JSON, _finite(summary.to_dict()))
     with atomic_path(run_dir / SUMMARY_FILE) as tmp:
         tmp.write_text(format_summary(summary, title=f"vp2 run {run_dir.name}") + "\n")
+    try:  # the report is a view of the results above: its failure must never lose them
+        from vp2.benchmark.report import REPORT_FILE, write_report
+
+        write_report([run_dir], run_dir / REPORT_FILE)
+    except Exception as exc:
+        log.warning("could not write the HTML report of %s: %r", run_dir, exc)
     return RunResult(
         run_dir=run_dir,
         config=config,
