@@ -114,8 +114,8 @@ def comparison_table(results: dict[str, RunResult]) -> str:
     for task in tasks:
         lines.append(f"| {task} | " + " | ".join(_cell(results[n].summary, task) for n in names)
                      + " |")
-    lines.append("| **mean** | " + " | ".join(f"**{100 * results[n].summary.mean:.0f}%**"
-                                               for n in names) + " |")
+    lines.append("| **mean over the agent's tasks** | "
+                 + " | ".join(f"**{100 * results[n].summary.mean:.0f}%**" for n in names) + " |")
     notes = []
     for name, r in results.items():
         dev = r.config.deviations()

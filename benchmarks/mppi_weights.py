@@ -1,0 +1,73 @@
+"""How selective is MPPI on the benchmark's cost scale? (oracle diagnosis)
+
+    MUJOCO_GL=egl .venv/bin/python benchmarks/mppi_weights.py --task robodesk/push_red -n 50
+
+At the first planning step of an instance, the simulator oracle predicts N candidate
+sequences drawn by the SPEC sampler (correlated noise, σ per env); each cost term is
+evaluated on them. Reported per term: the spread of the score over the candidates (std and
+max − min) and, for the total score, MPPI's weights ``softmax(γ · score)`` summarised by the
+effective sample size ``ESS = 1 / Σ w²`` (N: uniform weights, the plan is the mean of the noise;
+1: greedy). With ESS close to N, MPPI makes no progress.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import torch
+
+from vp2.benchmark.agent import (
+    CLASSIFIERS,
+    PlannerConfig,
+    build_cost,
+    frames_to_tensor,
+    planner_settings,
+)
+from vp2.data.suite import TaskSuite
+from vp2.models.reference import SimulatorModel
+from vp2.planning import DEFAULT_SIGMA
+from vp2.planning.samplers import CorrelatedNoiseSampler
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", default="robodesk/push_red")
+    parser.add_argument("--instance", type=int, default=0)
+    parser.add_argument("-n", "--num-samples", type=int, default=50)
+    parser.add_argument("--gammas", type=float, nargs="+", default=[0.05, 0.5, 5.0])
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    inst = TaskSuite.load().get(args.task, args.instance)
+    env_name = args.task.split("/")[0]
+    settings = planner_settings(args.task, PlannerConfig(num_samples=args.num_samples))
+    action_dim = 5 if env_name == "robodesk" else 4
+    candidates = CorrelatedNoiseSampler().sample(
+        torch.zeros(10, action_dim), DEFAULT_SIGMA[env_name], args.num_samples,
+        torch.Generator().manual_seed(0))
+    model = SimulatorModel(action_dim)
+    model.set_simulator_state(inst.env_meta, inst.init_state)
+    context = torch.zeros(args.num_samples, 2, 3, 64, 64)
+    actions = torch.cat([torch.zeros(args.num_samples, 1, action_dim), candidates], dim=1)
+    frames = model.predict(context, actions.float())
+    goal = frames_to_tensor(inst.goal_image, torch.device("cpu"))
+    print(f"{args.task} instance {args.instance}, {args.num_samples} candidates, "
+          f"planner {settings}")
+    for mode in ("pixel_only", "auto"):
+        cost, kind = build_cost(args.task, goal, mode, CLASSIFIERS)
+        terms = cost.breakdown(frames)
+        for (weight, term), values in zip(cost.terms, terms, strict=True):
+            v = values.double().numpy()
+            print(f"  [{kind}] {weight:g} x {type(term).__name__}: mean {v.mean():.1f} "
+                  f"std {v.std():.1f} range {v.max() - v.min():.1f}")
+        score = cost.score(frames).double()
+        for gamma in args.gammas:
+            w = torch.softmax(gamma * score, dim=0)
+            print(f"  [{kind}] gamma {gamma:g}: ESS {float(1 / (w ** 2).sum()):.1f} of "
+                  f"{args.num_samples}, max weight {float(w.max()):.3f}")
+    model.close()
+
+
+if __name__ == "__main__":
+    np.set_printoptions(precision=3)
+    main()
