@@ -11,7 +11,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-DEFAULT_TRAJECTORIES = {"robodesk": 20, "tabletop": 100}
+from vp2.data.collect import DEFAULT_TRAJECTORIES
+
 RUN_OPTIMIZERS = ["mppi", "cem", "cem_gd", "lbfgs"]
 
 

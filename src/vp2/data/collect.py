@@ -31,6 +31,10 @@ from vp2.envs.base import Env
 from vp2.utils.executors import Executor, LocalExecutor
 from vp2.utils.io import remove_stale_temporaries, write_json_atomic
 
+#: Trajectories per data stream of the default datasets (``vp2 collect <env>``): small enough
+#: to generate in CI time. Paper scale: robodesk 5,000 per task, tabletop 50,000.
+DEFAULT_TRAJECTORIES = {"robodesk": 20, "tabletop": 100}
+
 log = logging.getLogger(__name__)
 
 #: Control steps per trajectory (36 frames: the initial one and one per action).

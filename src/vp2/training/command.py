@@ -31,8 +31,7 @@ _DEFAULTS = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
 
 
 def _default_trajectories() -> dict[str, int]:
-    # The CLI owns the collection defaults; imported here, when used, to keep one copy.
-    from vp2.cli import DEFAULT_TRAJECTORIES
+    from vp2.data.collect import DEFAULT_TRAJECTORIES
 
     return dict(DEFAULT_TRAJECTORIES)
 
