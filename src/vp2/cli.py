@@ -176,7 +176,8 @@ def _add_run_parser(sub: argparse._SubParsersAction) -> None:
                    "| package.module:factory | file.yaml (with _target_)")
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--model-arg", action="append", default=[], metavar="KEY=VALUE",
-                   help="model factory argument, repeatable; VALUE parsed as YAML")
+                   help="model factory argument, repeatable; VALUE parsed as YAML (for a "
+                   "checkpoint: an inference setting, e.g. sampling_steps=10)")
     p.add_argument("--agent", choices=["planning", "random"], default="planning")
     p.add_argument("--suite", help="task suite file (default: the shipped suite)")
     p.add_argument("--tasks", nargs="+", help="task names or env names (default: all)")

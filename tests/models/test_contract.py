@@ -317,3 +317,28 @@ def test_parse_model_spec(tmp_path):
         parse_model_spec("nosuchmodel:x")
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         load_model_spec(f"fitvid:{tmp_path}")
+
+
+def test_checkpoint_inference_overrides(tmp_path):
+    from vp2.benchmark.plugins import PluginError
+    from vp2.benchmark.plugins import build_model as build_spec
+    from vp2.training.checkpoint import save_checkpoint
+
+    model = build_model("mcvd", "tiny", seed=3)
+    path = save_checkpoint(
+        tmp_path / "step_00000001.pt",
+        {"model": {"name": "mcvd", "config": model.config_dict(), "state_dict": model.state_dict()}},
+    )
+    loaded = load_model_spec(f"mcvd:{path}", device="cpu", overrides={"sampling_steps": "2"})
+    assert loaded.config.sampling_steps == 2 and model.config.sampling_steps == 10
+    for a, b in zip(loaded.state_dict().values(), model.state_dict().values()):
+        assert torch.equal(a, b)
+    # Through the runner's model-spec path, as `vp2 run --model mcvd:CKPT --model-arg ...`.
+    via_spec = build_spec(
+        f"mcvd:{path}", {"sampling_steps": 4}, env="robodesk", action_dim=5, device="cpu"
+    )
+    assert via_spec.config.sampling_steps == 4
+    with pytest.raises(PluginError, match="change the mcvd architecture"):
+        build_spec(f"mcvd:{path}", {"base_channels": 8}, env="robodesk", action_dim=5, device="cpu")
+    with pytest.raises(ValueError, match="sampling_stepz"):
+        load_model_spec(f"mcvd:{path}", device="cpu", overrides={"sampling_stepz": 2})

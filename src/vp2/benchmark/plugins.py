@@ -211,11 +211,12 @@ def build_model(
     if name is not None:
         from vp2.models.registry import load_model_spec
 
-        if args:
-            raise PluginError(
-                f"model {spec!r}: a checkpoint takes no model arguments, got {dict(args)}"
-            )
-        return load_model_spec(spec, device=device)
+        # Model arguments of a checkpoint override inference settings of its config
+        # (e.g. MCVD's sampling_steps); load_model refuses architecture changes.
+        try:
+            return load_model_spec(spec, device=device, overrides=dict(args or {}))
+        except ValueError as err:
+            raise PluginError(f"model {spec!r}: {err}") from err
     model = load_plugin(
         spec, args, context={"env": env, "action_dim": action_dim, "device": str(device)}
     )

@@ -298,6 +298,7 @@ def load_model(
     path: str | os.PathLike[str],
     device: str | torch.device | None = None,
     expected_name: str | None = None,
+    overrides: Mapping[str, Any] | None = None,
 ) -> VideoPredictor:
     """A trained model from a checkpoint, in eval mode, ready for ``predict``.
 
@@ -305,18 +306,34 @@ def load_model(
         path: A checkpoint file or a training run directory (its newest checkpoint).
         device: Where to put it; default CUDA if available, else CPU.
         expected_name: If given, the checkpoint must hold this model.
+        overrides: Config fields to change at inference, e.g. ``{"sampling_steps": 10}`` for
+            MCVD or ``{"decoding_iterations": 8}`` for MaskViT (strings are coerced to the
+            field's type). A change that alters the architecture is refused.
 
     Raises:
         FileNotFoundError: no checkpoint at ``path``.
-        ValueError: not a vp2 checkpoint, or a different model than ``expected_name``.
+        ValueError: not a vp2 checkpoint, a different model than ``expected_name``, an unknown
+            override field, or an override the checkpoint's weights do not fit.
     """
     device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     payload = read_checkpoint(path)
     name = payload["model"]["name"]
     if expected_name is not None and name != expected_name:
         raise ValueError(f"{latest_checkpoint(path)} holds a {name!r} model, not {expected_name!r}")
-    model = model_from_config(name, payload["model"]["config"])
-    model.load_state_dict(payload["model"]["state_dict"])
+    config: Any = payload["model"]["config"]
+    if overrides:
+        config = apply_overrides(_entry(name).model_class.config_class(**config), overrides)
+    model = model_from_config(name, config)
+    try:
+        model.load_state_dict(payload["model"]["state_dict"])
+    except RuntimeError as err:
+        if not overrides:
+            raise
+        raise ValueError(
+            f"{latest_checkpoint(path)}: the overrides {dict(overrides)} change the {name} "
+            f"architecture, so the checkpoint's weights no longer fit; override only "
+            f"inference settings (e.g. sampling_steps, decoding_iterations)"
+        ) from err
     return model.to(device).eval()
 
 
@@ -333,7 +350,11 @@ def parse_model_spec(spec: str) -> tuple[str, Path]:
     return name, Path(path)
 
 
-def load_model_spec(spec: str, device: str | torch.device | None = None) -> VideoPredictor:
+def load_model_spec(
+    spec: str,
+    device: str | torch.device | None = None,
+    overrides: Mapping[str, Any] | None = None,
+) -> VideoPredictor:
     """:func:`load_model` from ``name:path``, checking the checkpoint holds that model."""
     name, path = parse_model_spec(spec)
-    return load_model(path, device=device, expected_name=name)
+    return load_model(path, device=device, expected_name=name, overrides=overrides)
