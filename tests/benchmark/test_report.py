@@ -128,6 +128,18 @@ def test_labels_of_two_runs_of_one_model_are_made_distinct(tmp_path):
     assert "repeat_last_frame [repeat]" in html and "repeat_last_frame [repeat-copy]" in html
 
 
+def test_labels_given_by_the_user_replace_the_model_spec(tmp_path):
+    runs = small_runs()
+    html = write_report(
+        [runs["repeat"], runs["random"]], tmp_path / "r.html", labels=["persistence", None]
+    ).read_text()
+    assert "<b>persistence</b>" in html and "<b>random actions</b>" in html
+    runs_table = html.split("<h2>Runs")[1].split("</table>")[0]
+    assert "repeat_last_frame" not in re.sub(r"<code>[^<]*</code>", "", runs_table)
+    with pytest.raises(ValueError, match="1 label\\(s\\) for 2 run"):
+        write_report([runs["repeat"], runs["random"]], tmp_path / "x.html", labels=["a"])
+
+
 def test_study_section_appears_with_metrics(tmp_path):
     files = [
         write_metrics_file(tmp_path / "m" / "repeat.json", 300.0, 0.3, 0.7),

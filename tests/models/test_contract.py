@@ -331,7 +331,7 @@ def test_checkpoint_inference_overrides(tmp_path):
     )
     loaded = load_model_spec(f"mcvd:{path}", device="cpu", overrides={"sampling_steps": "2"})
     assert loaded.config.sampling_steps == 2 and model.config.sampling_steps == 10
-    for a, b in zip(loaded.state_dict().values(), model.state_dict().values()):
+    for a, b in zip(loaded.state_dict().values(), model.state_dict().values(), strict=True):
         assert torch.equal(a, b)
     # Through the runner's model-spec path, as `vp2 run --model mcvd:CKPT --model-arg ...`.
     via_spec = build_spec(

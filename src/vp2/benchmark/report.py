@@ -95,8 +95,12 @@ def _read_config(run_dir: Path) -> tuple[dict[str, Any], list[str]]:
     return dict(data.get("config") or {}), list(data.get("spec_deviations") or [])
 
 
-def load_runs(run_dirs: Sequence[PathLike]) -> list[RunView]:
+def load_runs(
+    run_dirs: Sequence[PathLike], labels: Sequence[str | None] | None = None
+) -> list[RunView]:
     """Reads the runs, labels them uniquely and normalises their scores.
+
+    ``labels``: one per run directory (``None`` or empty: the model spec, :func:`model_label`).
 
     An oracle run among ``run_dirs`` normalises every other run; otherwise a run's own
     ``oracle`` setting is used if that directory exists.
@@ -104,8 +108,13 @@ def load_runs(run_dirs: Sequence[PathLike]) -> list[RunView]:
     Raises:
         FileNotFoundError: a directory that is not a run (no ``trials.jsonl``).
     """
+    if labels is not None and len(labels) != len(run_dirs):
+        raise ValueError(
+            f"{len(labels)} label(s) for {len(run_dirs)} run director(ies): give one per run "
+            "('-' keeps a run's default label)"
+        )
     runs = []
-    for d in run_dirs:
+    for i, d in enumerate(run_dirs):
         run_dir = Path(d)
         if not (run_dir / "trials.jsonl").is_file():
             raise FileNotFoundError(f"{run_dir}: no trials.jsonl (not a vp2 run directory)")
@@ -117,7 +126,7 @@ def load_runs(run_dirs: Sequence[PathLike]) -> list[RunView]:
         runs.append(
             RunView(
                 run_dir,
-                model_label(config),
+                (labels[i] if labels is not None and labels[i] else None) or model_label(config),
                 config,
                 deviations,
                 records,
@@ -431,6 +440,7 @@ def write_report(
     trials_per_task: int = DEFAULT_TRIALS_PER_TASK,
     max_gallery_bytes: int = DEFAULT_MAX_GALLERY_BYTES,
     title: str | None = None,
+    labels: Sequence[str | None] | None = None,
 ) -> Path:
     """Writes the HTML report of ``run_dirs`` to ``out_path`` (atomically); returns it.
 
@@ -445,10 +455,11 @@ def write_report(
         trials_per_task: Gallery trials per model and task.
         max_gallery_bytes: Cap on the embedded GIF bytes.
         title: Page title (default: the model labels).
+        labels: Model labels, one per run directory (``None``: the model spec).
     """
     from vp2.utils.io import atomic_path
 
-    runs = load_runs(run_dirs)
+    runs = load_runs(run_dirs, labels)
     study_html = None
     per_run = _metrics_by_run(run_dirs, metrics)
     if any(m for m in per_run):
@@ -497,6 +508,12 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         default=DEFAULT_TRIALS_PER_TASK,
         help="gallery trials per model and task (default: %(default)s)",
     )
+    p.add_argument(
+        "--labels",
+        nargs="+",
+        metavar="LABEL",
+        help="model label per RUN_DIR, in the same order ('-' keeps the default: the model spec)",
+    )
     p.add_argument("--title", help="page title")
     return p
 
@@ -512,6 +529,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         metrics,
         trials_per_task=args.trials_per_task,
         title=args.title,
+        labels=None if args.labels is None else [None if x == "-" else x for x in args.labels],
     )
     print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
     return 0
