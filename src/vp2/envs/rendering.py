@@ -105,12 +105,25 @@ _LIVE_RENDERERS: weakref.WeakSet[Renderer] = weakref.WeakSet()
 @atexit.register
 def _close_all_renderers() -> None:
     for renderer in list(_LIVE_RENDERERS):
-        try:
-            renderer.close()
-        except Exception:  # noqa: BLE001
-            # At interpreter exit EGL may already be terminated (atexit order across
-            # libraries is not ours to fix); the OS reclaims the contexts anyway.
-            renderer._contexts.clear()
+        for ctx in list(renderer._contexts.values()):
+            try:
+                ctx.close()
+            except Exception:  # noqa: BLE001
+                # EGL is already terminated: another library's exit hook (dm_control's, when
+                # the `robodesk` package rendered after us) ran first. The OS reclaims the
+                # contexts; drop MuJoCo's handles so that its destructors do not retry and
+                # print EGL_NOT_INITIALIZED tracebacks at exit.
+                _forget_gl_handles(ctx)
+        renderer._contexts.clear()
+
+
+def _forget_gl_handles(ctx: mujoco.Renderer) -> None:
+    gl_context = getattr(ctx, "_gl_context", None)
+    if gl_context is not None and hasattr(gl_context, "_context"):
+        gl_context._context = None
+    for attr in ("_gl_context", "_mjr_context"):
+        if hasattr(ctx, attr):
+            setattr(ctx, attr, None)
 
 
 _EXIT_HOOK_AFTER_GL = False
