@@ -17,7 +17,6 @@ interleaved with the timing repeated ``--repeats`` times (median), so machine no
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import platform
 import statistics
 import time
@@ -69,11 +68,11 @@ def main() -> None:
     frames = torch.stack([it["frames"] for it in items])
     actions = torch.stack([it["actions"] for it in items]).float()
     env = "tabletop" if actions.shape[-1] == 4 else "robodesk"
-    model = build_model(args.model, {}, env=env, action_dim=actions.shape[-1], device="cpu")
-    base = model.config
-
     def predict(value: int) -> tuple[torch.Tensor, float]:
-        model.config = dataclasses.replace(base, **{field: value})
+        # The checkpoint loaded with an inference override, as `vp2 run --model-arg` does.
+        model = build_model(
+            args.model, {field: value}, env=env, action_dim=actions.shape[-1], device="cpu"
+        )
         outs, t0 = [], time.perf_counter()
         with torch.no_grad():
             for b in range(0, len(frames), args.batch_size):
@@ -89,7 +88,6 @@ def main() -> None:
             pred, per_clip = predict(v)
             times[v].append(per_clip)
             results[v] = quality(pred, frames[:, 2:], frames[:, 1:2])
-    model.config = base
 
     print(f"{args.model}: {len(items)} held-out clips of {args.data} (seed {args.seed}), "
           f"{platform.machine()} CPU, {args.threads} thread(s)")

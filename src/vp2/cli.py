@@ -268,45 +268,43 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_run_parser(sub)
 
+    from vp2.benchmark import classifiers, report, study
+    from vp2.metrics import evaluate as metrics_command
     from vp2.training import command as train_command
 
-    p = sub.add_parser("train", help="train a video prediction model on a collected dataset",
-                       description="Train a video prediction model on a collected dataset "
-                                   "(docs/models.md). Continue a run with the same command "
-                                   "and --resume.")
-    train_command.configure_parser(p)
-    p.set_defaults(fn=train_command.run_from_args)
-
-    from vp2.benchmark import classifiers
-
-    p = sub.add_parser("train-classifier", help="train RoboDesk success classifiers",
-                       description="Train the per-task RoboDesk success classifiers of the "
-                                   "planning cost on a collected dataset (docs/benchmark.md).")
-    classifiers.configure_parser(p)
-    p.set_defaults(fn=classifiers.run_from_args)
-
-    from vp2.metrics import evaluate as metrics_command
-
-    p = sub.add_parser("metrics", help="perceptual metrics of a model on held-out clips",
-                       description="MSE, PSNR, SSIM, LPIPS and FVD of a model's predictions on "
-                                   "a fixed, seeded set of held-out clips (docs/metrics.md).")
-    metrics_command.configure_parser(p)
-    p.set_defaults(fn=metrics_command.run_from_args)
-
-    from vp2.benchmark import report, study
-
-    p = sub.add_parser("report", help="self-contained HTML report of one or more runs",
-                       description="Writes one self-contained HTML page: success per task and "
-                                   "model, normalised scores, the study when metrics exist, "
-                                   "trial videos (docs/report.md).")
-    report.configure_parser(p)
-    p.set_defaults(fn=report.run_from_args)
-    p = sub.add_parser("study", help="perceptual metrics versus control success",
-                       description="Table 1 of the paper and rank correlations between each "
-                                   "metric and success over several models (docs/report.md).")
-    study.configure_parser(p)
-    p.set_defaults(fn=study.run_from_args)
+    _add_module_command(
+        sub, "train", train_command,
+        "train a video prediction model on a collected dataset",
+        "Train a video prediction model on a collected dataset (docs/models.md). Continue a "
+        "run with the same command and --resume.")
+    _add_module_command(
+        sub, "train-classifier", classifiers,
+        "train RoboDesk success classifiers",
+        "Train the per-task RoboDesk success classifiers of the planning cost on a collected "
+        "dataset (docs/benchmark.md).")
+    _add_module_command(
+        sub, "metrics", metrics_command,
+        "perceptual metrics of a model on held-out clips",
+        "MSE, PSNR, SSIM, LPIPS and FVD of a model's predictions on a fixed, seeded set of "
+        "held-out clips (docs/metrics.md).")
+    _add_module_command(
+        sub, "report", report,
+        "self-contained HTML report of one or more runs",
+        "Writes one self-contained HTML page: success per task and model, normalised scores, "
+        "the study when metrics exist, trial videos (docs/report.md).")
+    _add_module_command(
+        sub, "study", study,
+        "perceptual metrics versus control success",
+        "Table 1 of the paper and rank correlations between each metric and success over "
+        "several models (docs/report.md).")
     return parser
+
+
+def _add_module_command(sub, name: str, module, help: str, description: str) -> None:
+    """A sub-command whose module brings its own ``configure_parser`` and ``run_from_args``."""
+    p = sub.add_parser(name, help=help, description=description)
+    module.configure_parser(p)
+    p.set_defaults(fn=module.run_from_args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -126,7 +126,7 @@ def load_runs(
         runs.append(
             RunView(
                 run_dir,
-                (labels[i] if labels is not None and labels[i] else None) or model_label(config),
+                (labels[i] if labels else None) or model_label(config),
                 config,
                 deviations,
                 records,
