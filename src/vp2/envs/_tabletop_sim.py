@@ -137,15 +137,19 @@ OBJECT_FRICTION = [0.5, 0.005, 0.0001]
 #: pushed at 0.2 m/s stops within about 2 cm of where the push ends.
 SPHERE_ROLLING_FRICTION = 0.004
 
-#: The benchmark camera: fixed, nearly overhead (84 degrees elevation, from the front) and far
-#: away with a narrow field of view, so that objects look about the same size everywhere on
-#: the table. The pose keeps the four table corners and the forearm in the 64x64 image and
-#: makes a 5 cm object in the objects' workspace as large as possible there (searched over
-#: elevations, look-at points and fields of view; see docs/tabletop.md).
+#: The benchmark camera: fixed, in front of the table looking back at the robot from 45 degrees
+#: of elevation (like robosuite's ``agentview``, which the paper's ``agentview_shift_2``
+#: shifts), far away with a narrow field of view so that objects look about the same size
+#: everywhere on the table. The closest such camera that keeps the four table corners, the
+#: tops of objects anywhere in the placement and target regions and the arm's forearm and hand
+#: in the 64x64 image. Against the first, nearly overhead view (84 degrees) it doubles the
+#: objects' share of the pixel cost between the initial frame and the goal image (6.8% -> 13.5%)
+#: and shows the pushed object in 80% of the goal images instead of 34% (from above the hand
+#: hid it): ``benchmarks/tabletop_view_study.py``, docs/benchmark.md.
 CAMERA_NAME = "vp2_tabletop"
-CAMERA_POS = (0.10, 0.0, 2.76)
-CAMERA_LOOKAT = (-0.11, 0.0, 0.8)
-CAMERA_FOVY = 20.0
+CAMERA_POS = (2.696, 0.0, 3.741)
+CAMERA_LOOKAT = (-0.245, 0.0, 0.8)
+CAMERA_FOVY = 10.0
 
 # MuJoCo's default geom colour: with a material assigned, the renderer uses the material's.
 _DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
@@ -306,6 +310,9 @@ class TabletopWorld(ManipulationEnv):
         groups[(groups == 0) | (groups == 2)] = _HIDDEN_GEOM_GROUP
         # robosuite's sites are debugging markers (grip point, axis lines): never drawn here.
         model.site_group[:] = _HIDDEN_GEOM_GROUP
+        # A matte scene: the floor's 1% reflectance (robosuite's) is visible from the oblique
+        # camera and would cost a second scene pass per frame for a faint mirror image.
+        model.mat_reflectance[:] = 0.0
 
     def reward(self, action: np.ndarray | None = None) -> float:
         """Unused by the benchmark (success is judged against a goal state)."""
