@@ -3,7 +3,8 @@ import pytest
 
 from vp2.data import suite as suite_lib
 from vp2.data.suite import SUITE_COUNTS, TaskSuite, generate_instance, replay_instance
-from vp2.envs import TASK_NAMES
+from vp2.envs import TABLETOP_TASKS, TASK_NAMES
+from vp2.envs.tabletop import TabletopEnv
 
 
 @pytest.fixture(scope="module")
@@ -24,6 +25,24 @@ def test_shipped_suite_has_the_canonical_counts(shipped):
             assert 1 <= len(inst.actions) <= 35 and np.all(np.abs(inst.actions) <= 1)
             assert inst.env_meta["name"] == task
         assert len({i.seed for i in insts}) == len(insts)
+
+
+def test_tabletop_goals_are_reachable_within_a_control_trial(shipped):
+    from vp2.benchmark.runner import RunConfig
+
+    # 15 control steps, the first one the zero action: 14 actions to reach the goal.
+    assert suite_lib.TRIAL_FREE_ACTIONS == RunConfig(model="x", out="x").num_steps - 1 == 14
+    for task in (f"tabletop/{name}" for name in TABLETOP_TASKS):
+        lengths = [len(inst.actions) for inst in shipped.for_task(task)]
+        assert max(lengths) <= suite_lib.TRIAL_FREE_ACTIONS, (task, lengths)
+        # The pushed object moves INSTANCE_PUSH_DISTANCE, far beyond the 5 cm threshold.
+        inst = shipped.for_task(task)[0]
+        start = TabletopEnv.object_positions_from_state(inst.init_state)
+        goal = TabletopEnv.object_positions_from_state(inst.goal_state)
+        moved = np.linalg.norm(goal[:, :2] - start[:, :2], axis=1)
+        assert moved.max() > 0.1, (task, moved)
+        initially, finally_ = replay_instance(inst)
+        assert not initially and finally_
 
 
 @pytest.mark.parametrize("task", TASK_NAMES)

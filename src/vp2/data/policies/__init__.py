@@ -9,7 +9,8 @@ A *data stream* is what one scripted policy collects:
   one scene, so one stream serves all four.
 
 For the task suite, :func:`make_task_policy` gives the noise-free policy that solves one
-registered task category (tabletop: pushes that category's object).
+registered task category (tabletop: pushes that category's object the shorter
+``INSTANCE_PUSH_DISTANCE``, so that a control trial can reach the goal).
 """
 
 from __future__ import annotations
@@ -54,15 +55,17 @@ def data_noise_sigma(stream: str, stream_index: int) -> tuple[float, ...] | floa
 
 
 def make_task_policy(env: Env, rng: np.random.Generator) -> ScriptedPolicy:
-    """The noise-free scripted policy that solves ``env``'s task category."""
+    """The noise-free scripted policy that solves ``env``'s task category (for the task suite)."""
     env_name, task = split_name(env.name)
     if env_name == "robodesk":
         from vp2.data.policies.robodesk import make_robodesk_policy
 
         return make_robodesk_policy(env, rng)
-    from vp2.data.policies.tabletop import make_tabletop_policy
+    from vp2.data.policies.tabletop import INSTANCE_PUSH_DISTANCE, make_tabletop_policy
 
-    return make_tabletop_policy(env, rng, target_object=task.removeprefix("push_"))
+    return make_tabletop_policy(
+        env, rng, target_object=task.removeprefix("push_"), push_distance=INSTANCE_PUSH_DISTANCE
+    )
 
 
 def make_policy(

@@ -1,0 +1,39 @@
+"""How many scripted actions each task instance needs, against a control trial's 14.
+
+    .venv/bin/python benchmarks/suite_reachability.py [--suite PATH]
+
+A control trial has 15 steps and executes the zero action first (SPEC §4): 14 actions to
+reach the goal. The scripted policy's action count is a fair estimate of what an instance
+needs when the policy drives the arm at the action limit; the share of such steps (any of the
+first three action dimensions, the arm's translation, with |a| > 0.95) is printed with it.
+Prints a Markdown table (docs/benchmark.md, "Are the goals reachable within a trial?").
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from vp2.data.suite import TRIAL_FREE_ACTIONS, TaskSuite
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--suite", default=None, help="task suite file (default: the shipped one)")
+    args = parser.parse_args()
+    suite = TaskSuite.load(args.suite)
+    print(f"| task | scripted actions min / median / max | instances reachable in "
+          f"{TRIAL_FREE_ACTIONS} actions | steps at the action limit |")
+    print("|---|---|---|---|")
+    for task in suite.tasks:
+        insts = suite.for_task(task)
+        lengths = np.array([len(i.actions) for i in insts])
+        actions = np.concatenate([i.actions for i in insts])
+        saturated = np.mean(np.abs(actions[:, :3]).max(axis=1) > 0.95)
+        print(f"| {task} | {lengths.min()} / {np.median(lengths):g} / {lengths.max()} | "
+              f"{int(np.sum(lengths <= TRIAL_FREE_ACTIONS))} / {len(insts)} | {100 * saturated:.0f}% |")
+
+
+if __name__ == "__main__":
+    main()
