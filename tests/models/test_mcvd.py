@@ -169,3 +169,30 @@ def test_planning_trial_with_two_sampling_steps():
     result = ControlTrial(instance, agent, seed=0, num_steps=3).run()
     assert result.actions.shape == (3, 4)
     assert float(abs(result.actions[1:]).max()) > 0
+
+
+@pytest.mark.parametrize("steps", [1, 10, 100])
+def test_sampler_recovers_the_frames_from_an_exact_noise_predictor(steps, monkeypatch):
+    """With the true noise at every timestep the strided chain must stay on the forward
+    process's marginals -- x_t = sqrt(ab_t) x_0 + sqrt(1 - ab_t) * unit noise at every visited
+    t -- and end on the clean frames."""
+    model = build_model("mcvd", "tiny", sampling_steps=steps, **SMALL)
+    size = model.image_size
+    gen = torch.Generator().manual_seed(0)
+    clean = torch.rand(2, 3 * model.config.window, size, size, generator=gen) * 2 - 1
+
+    noise_std = []
+
+    def exact_eps(x, t, cond):
+        ab = model.alphas_cumprod[t][:, None, None, None]
+        eps = (x - ab.sqrt() * clean) / (1 - ab).sqrt()
+        noise_std.append(float(eps.std()))
+        return eps
+
+    monkeypatch.setattr(model, "_denoiser", exact_eps)
+    context = torch.rand(2, model.config.num_context, 3, size, size, generator=gen) * 2 - 1
+    actions = torch.zeros(2, model.config.window + 1, 4)
+    out = model.sample_window(context, actions, torch.Generator().manual_seed(1))
+    torch.testing.assert_close(out.flatten(1, 2), clean, atol=1e-4, rtol=0)
+    assert len(noise_std) == len(model.sampling_timesteps())
+    assert all(abs(v - 1) < 0.03 for v in noise_std), noise_std
