@@ -140,6 +140,28 @@ def test_resume_with_more_seeds_runs_only_the_new_keys(reference, tmp_path):
     assert _outcomes(grown.records) == expected
 
 
+def test_resume_refuses_trials_of_a_changed_task_suite(tmp_path):
+    import dataclasses
+
+    from vp2.data.suite import TaskSuite
+
+    suite_file = tmp_path / "suite.npz"
+    suite = TaskSuite.load(tiny_suite_path())
+    suite.save(suite_file)
+    first = run_benchmark(_config(tmp_path, "run", suite=str(suite_file), seeds=(0,)))
+    assert first.num_run == 2
+    shas = {r["instance"]: r["instance_sha"] for r in first.records}
+    assert shas == {i.index: i.fingerprint for i in suite}
+    # The same file, one goal image changed (as a new vp2 release might ship): refused.
+    changed = [
+        dataclasses.replace(i, goal_image=255 - i.goal_image) if i.index == 1 else i for i in suite
+    ]
+    TaskSuite(changed, seed=suite.seed).save(suite_file)
+    with pytest.raises(ValueError, match=r"tabletop/push_sphere#1.*suite changed"):
+        run_benchmark(_config(tmp_path, "run", suite=str(suite_file), seeds=(0, 1), resume=True))
+    assert len(read_trials(tmp_path / "run")) == 2  # nothing lost, nothing added
+
+
 @pytest.mark.parametrize(
     ("model", "match"),
     [

@@ -436,11 +436,12 @@ def _error(exc: BaseException, where: str) -> dict[str, Any]:
     }
 
 
-def _base_record(key: TrialKey, identity: dict[str, Any]) -> dict[str, Any]:
-    task, index, seed = key
+def _base_record(job: _Job, identity: dict[str, Any]) -> dict[str, Any]:
+    task, index, seed = job.key
     return {
         "task": task,
         "instance": index,
+        "instance_sha": job.instance.fingerprint,
         "seed": seed,
         "model": identity,
         "vp2_version": vp2.__version__,
@@ -457,15 +458,15 @@ def _run_job(job: _Job) -> _Outcome:
     try:
         env = _STATE.env(job.instance)
     except Exception as exc:  # a simulator that cannot even be built
-        record = {**_base_record(job.key, fallback_identity), "success": None}
+        record = {**_base_record(job, fallback_identity), "success": None}
         return _Outcome(job.key, {**record, "error": _error(exc, "environment")})
     env_name = split_name(job.instance.task)[0]
     try:
         agent, identity = _STATE.agent(env_name, env.action_dim)
     except Exception as exc:
-        record = {**_base_record(job.key, fallback_identity), "success": None}
+        record = {**_base_record(job, fallback_identity), "success": None}
         return _Outcome(job.key, {**record, "error": _error(exc, "model_build")}, fatal=True)
-    record = _base_record(job.key, identity)
+    record = _base_record(job, identity)
     try:
         trial = ControlTrial(
             job.instance,
@@ -578,6 +579,30 @@ def _prepare_run_dir(config: RunConfig) -> Path:
             remove_stale_temporaries(directory)
     _write_config(run_dir, config)
     return run_dir
+
+
+def _check_same_instances(
+    run_dir: Path, records: list[dict[str, Any]], by_key: dict[tuple[str, int], TaskInstance]
+) -> None:
+    """Refuses to resume when finished trials ran on other task instances than the suite's now."""
+    changed = sorted(
+        f"{r['task']}#{r['instance']}"
+        for r in records
+        if (r["task"], r["instance"]) in by_key
+        and r.get("instance_sha") not in (None, by_key[(r["task"], r["instance"])].fingerprint)
+    )
+    if changed:
+        raise ValueError(
+            f"cannot resume {run_dir}: {len(changed)} finished trial(s) ran on task instances that "
+            f"differ from the task suite's now ({', '.join(sorted(set(changed))[:5])}"
+            f"{', ...' if len(set(changed)) > 5 else ''}); the suite changed since (a new vp2 "
+            "release or another --suite). Use a new output directory"
+        )
+    if any("instance_sha" not in r for r in records):
+        log.warning(
+            "%s: trials recorded before instance fingerprints existed; cannot check that they "
+            "ran on the same task instances as the suite now", run_dir
+        )
 
 
 def _load_existing(run_dir: Path, retry_errors: bool) -> list[dict[str, Any]]:
@@ -753,6 +778,7 @@ def run_benchmark(config: RunConfig) -> RunResult:
     keys = trial_keys(instances, config.seeds)
     run_dir = _prepare_run_dir(config)
     existing = _load_existing(run_dir, config.retry_errors)
+    _check_same_instances(run_dir, existing, by_key)
     done = {trial_key(r) for r in existing}
     todo = [k for k in keys if k not in done]
     for message in config.deviations():
@@ -779,7 +805,7 @@ def run_benchmark(config: RunConfig) -> RunResult:
                         "where": "worker",
                         "traceback": "",
                     }
-                    record = {**_base_record(job.key, {"spec": config.model}), "success": None}
+                    record = {**_base_record(job, {"spec": config.model}), "success": None}
                     outcome = _Outcome(job.key, {**record, "error": error})
                 if outcome.fatal:
                     err = outcome.record["error"]

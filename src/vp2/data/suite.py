@@ -14,6 +14,7 @@ zip timestamps, so regenerating with the same seeds reproduces the shipped file 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import io
 import json
 import zipfile
@@ -72,6 +73,16 @@ class TaskInstance:
     @property
     def key(self) -> str:
         return f"{self.task}#{self.index}"
+
+    @property
+    def fingerprint(self) -> str:
+        """A short hash of what a trial on this instance sees: its key, initial and goal states
+        and goal image. Trial records carry it, so a run resumed after the suite changed (a new
+        ``vp2`` release, another ``--suite``) is refused instead of mixing instances."""
+        h = hashlib.sha256(self.key.encode())
+        for array in (self.init_state, self.goal_state, self.goal_image):
+            h.update(np.ascontiguousarray(array).tobytes())
+        return h.hexdigest()[:16]
 
     def make_env(self, **overrides: Any) -> Env:
         """An environment rebuilt from the instance's metadata, reset to its initial state."""
