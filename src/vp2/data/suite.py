@@ -3,8 +3,9 @@
 A :class:`TaskInstance` is an initial simulator state, a goal state and its 64×64 goal image,
 the scripted actions that reach the goal from the initial state, and the environment
 metadata. The goal is a state the task's noise-free scripted policy actually reached from
-that initial state (so it is reachable within the horizon) and that satisfies the task's
-success criterion; instances whose initial state already satisfies it are rejected.
+that initial state within :data:`MAX_INSTANCE_ACTIONS` (a control trial's 14 free actions on
+the tabletop, the 35-step data horizon on RoboDesk) and that satisfies the task's success
+criterion; instances whose initial state already satisfies it are rejected.
 
 Generation is deterministic: attempt ``k`` of a task uses a seed derived from
 ``(suite seed, task, k)``, attempts are accepted in order, and the file is written with fixed
