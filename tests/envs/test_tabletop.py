@@ -200,10 +200,13 @@ def test_is_success_on_hand_made_goals(env):
     env.set_goal(TabletopEnv.with_object_positions(state, far))
     *_, info = env.step(np.zeros(4))
     assert info["success"] is False
+    assert not env.is_success()  # the goal set above is the far one
     env.set_goal(state)
     _, reward, *_, info = env.step(np.zeros(4))
     assert info["success"] is True and reward == 1.0
+    assert env.is_success()  # without an argument: the goal of set_goal
     env.set_goal(None)
+    assert not env.is_success()
 
 
 def test_serialize_round_trip(env):

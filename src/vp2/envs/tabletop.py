@@ -356,7 +356,13 @@ class TabletopEnv(Env):
         return float(np.max(np.linalg.norm(np.asarray(positions) - goal, axis=-1)))
 
     def is_success(self, goal_state: np.ndarray | None = None) -> bool:
-        """All objects within :data:`SUCCESS_THRESHOLD` of their goal positions (``False`` if no goal)."""
+        """All objects within :data:`SUCCESS_THRESHOLD` of their goal positions.
+
+        ``goal_state`` defaults to the goal given to :meth:`set_goal` (an instance's
+        ``make_env()`` sets it); ``False`` when there is neither.
+        """
+        if goal_state is None:
+            goal_state = self._goal_state
         if goal_state is None:
             return False
         return self.goal_distance(self.object_positions(), goal_state) < SUCCESS_THRESHOLD
