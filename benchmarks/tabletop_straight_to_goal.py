@@ -19,8 +19,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 
 from vp2.data.suite import TRIAL_FREE_ACTIONS, TaskSuite  # noqa: E402
+from vp2.envs import split_name  # noqa: E402
 from vp2.envs._tabletop_sim import OSC_OUTPUT_MAX  # noqa: E402
-from vp2.envs.tabletop import TabletopEnv  # noqa: E402
+from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv  # noqa: E402
 
 
 def straight_to_goal_pose(inst) -> bool:
@@ -50,7 +51,7 @@ def main() -> None:
         for inst in suite.for_task(task):
             start = TabletopEnv.object_positions_from_state(inst.init_state)
             goal = TabletopEnv.object_positions_from_state(inst.goal_state)
-            k = int(np.argmax(np.linalg.norm(goal - start, axis=1)))
+            k = OBJECT_NAMES.index(split_name(task)[1].removeprefix("push_"))
             (away if goal[k, 0] >= start[k, 0] else back).append(straight_to_goal_pose(inst))
         print(f"| {task} | {sum(away) + sum(back)} / {len(away) + len(back)} | "
               f"{sum(away)} / {len(away)} | {sum(back)} / {len(back)} |")

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from vp2.benchmark.results import Summary
 from vp2.benchmark.runner import RunConfig, RunResult, run_benchmark
+from vp2.benchmark.trial import NUM_CONTROL_STEPS
 from vp2.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
@@ -67,7 +68,7 @@ class MainJobConfig:
     agents: tuple[str, ...] = ("model", "repeat_last_frame", "random")
     resume: bool = True
     suite: str | None = None
-    num_steps: int = 15
+    num_steps: int = NUM_CONTROL_STEPS
 
 
 def _run_configs(config: MainJobConfig) -> dict[str, RunConfig]:

@@ -585,17 +585,17 @@ def _check_same_instances(
     run_dir: Path, records: list[dict[str, Any]], by_key: dict[tuple[str, int], TaskInstance]
 ) -> None:
     """Refuses to resume when finished trials ran on other task instances than the suite's now."""
-    changed = sorted(
-        f"{r['task']}#{r['instance']}"
+    changed = sorted({
+        by_key[key].key
         for r in records
-        if (r["task"], r["instance"]) in by_key
-        and r.get("instance_sha") not in (None, by_key[(r["task"], r["instance"])].fingerprint)
-    )
+        if (key := (r["task"], r["instance"])) in by_key
+        and r.get("instance_sha") not in (None, by_key[key].fingerprint)
+    })
     if changed:
         raise ValueError(
-            f"cannot resume {run_dir}: {len(changed)} finished trial(s) ran on task instances that "
-            f"differ from the task suite's now ({', '.join(sorted(set(changed))[:5])}"
-            f"{', ...' if len(set(changed)) > 5 else ''}); the suite changed since (a new vp2 "
+            f"cannot resume {run_dir}: finished trials ran on {len(changed)} task instance(s) that "
+            f"differ from the task suite's now ({', '.join(changed[:5])}"
+            f"{', ...' if len(changed) > 5 else ''}); the suite changed since (a new vp2 "
             "release or another --suite). Use a new output directory"
         )
     if any("instance_sha" not in r for r in records):

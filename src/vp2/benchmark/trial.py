@@ -16,11 +16,8 @@ from typing import Any
 import numpy as np
 
 from vp2.benchmark.agent import Agent, Observation, check_agent_for_env
-from vp2.data.suite import TaskInstance
+from vp2.data.suite import NUM_CONTROL_STEPS, TaskInstance
 from vp2.envs.base import Env
-
-#: Control steps per trial (SPEC §4).
-NUM_CONTROL_STEPS = 15
 
 
 def trial_seed(task: str, index: int, seed: int) -> int:

@@ -41,9 +41,11 @@ SUITE_COUNTS: dict[str, int] = {
 SUITE_SEED = 2023
 GOAL_IMAGE_SIZE = 64
 HORIZON = 35
-#: Actions a control trial can choose (SPEC §4: 15 control steps, the first executes the zero
-#: action).
-TRIAL_FREE_ACTIONS = 14
+#: Control steps per trial (SPEC §4). Defined here, below the benchmark layer, because the
+#: suite's acceptance depends on it; ``vp2.benchmark.trial`` uses the same constant.
+NUM_CONTROL_STEPS = 15
+#: Actions a control trial can choose: the first of its steps executes the zero action.
+TRIAL_FREE_ACTIONS = NUM_CONTROL_STEPS - 1
 #: The most scripted actions an instance's goal may take to reach, per environment. SPEC §2
 #: asks that a goal be reachable "within the horizon"; on the tabletop, whose success is
 #: relative to the goal state, instances are accepted only if the noise-free scripted policy

@@ -198,7 +198,7 @@ class TabletopEnv(Env):
         object_yaw = rng.uniform(0.0, 2.0 * np.pi, size=len(OBJECT_NAMES))
         self._set_initial_state(arm_qpos, object_xy, object_yaw, textures)
         obs = self._observation()
-        return obs, {"textures": self.texture_names(), "success": self.is_success(self._goal_state)}
+        return obs, {"textures": self.texture_names(), "success": self.is_success()}
 
     @staticmethod
     def _sample_placement(rng: np.random.Generator) -> np.ndarray:
@@ -294,7 +294,7 @@ class TabletopEnv(Env):
     ) -> tuple[np.ndarray | None, float, bool, bool, dict[str, Any]]:
         """One control step (0.2 s). ``info["success"]`` is judged against :meth:`set_goal`."""
         self._stepper.step(self.check_action(action))
-        success = self.is_success(self._goal_state)
+        success = self.is_success()
         return self._observation(), float(success), False, False, {"success": success}
 
     # ---- observation -----------------------------------------------------------------------

@@ -2,8 +2,8 @@
 
 Each episode the policy picks an object (at random, or the one it is given: the task suite
 pushes the task's own object), a direction ``theta`` uniform in ``[0, pi]`` -- the push moves the
-object by ``PUSH_DISTANCE * (cos theta, sin theta)`` in the table plane (world x points away from
-the robot, y to its left) -- and a target ``push_distance`` away in that direction (0.3 m for
+object by ``push_distance * (cos theta, sin theta)`` in the table plane (world x points away from
+the robot, y to its left) -- and a target that far away in that direction (0.3 m for
 training data, SPEC §3; the task suite pushes :data:`INSTANCE_PUSH_DISTANCE`). Directions are redrawn
 until the target lies in :data:`TARGET_REGION` (on the table, within the arm's reach) and, with
 ``clear_path`` (the default), until neither the pushed object nor the fingers sweep through
