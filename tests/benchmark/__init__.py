@@ -22,6 +22,7 @@ import functools
 import os
 import signal
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -147,6 +148,20 @@ class FlakyModel(_Base):
         if self._bad() and not os.path.exists(self.marker):
             Path(self.marker).touch()
             raise RuntimeError("transient failure")
+        return self._good(context_frames)
+
+
+class SlowModel(_Base):
+    """Repeats the last frame after sleeping ``delay`` seconds per call (a slow model)."""
+
+    name = "slow_model"
+
+    def __init__(self, action_dim: int, delay: float) -> None:
+        super().__init__(action_dim)
+        self.delay = delay
+
+    def predict(self, context_frames, actions, *, generator=None, grad=None):
+        time.sleep(self.delay)
         return self._good(context_frames)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 import json
 import os
 import re
@@ -218,6 +219,18 @@ def test_a_model_that_cannot_be_built_stops_the_run(tmp_path):
     assert read_trials(cfg.out) == []
     with pytest.raises(ValueError, match="cannot import module"):
         run_benchmark(_config(tmp_path, "missing", model="no_such_pkg.models:build"))
+
+
+def test_finished_at_is_stamped_when_the_trial_ends(tmp_path):
+    # 2 planning steps of a model that takes 1.5 s per call: the trial lasts > 3 s.
+    cfg = _config(tmp_path, "slow", seeds=(0,), num_instances=1,
+                  model="tests.benchmark:SlowModel", model_args={"delay": 1.5})
+    started = datetime.datetime.now(datetime.timezone.utc)
+    (record,) = run_benchmark(cfg).records
+    finished = datetime.datetime.fromisoformat(record["finished_at"])
+    assert record["timings"]["total_s"] > 3.0
+    # ISO seconds truncate up to 1 s; a stamp taken at the trial's start would be < 1 s late.
+    assert (finished - started).total_seconds() >= record["timings"]["total_s"] - 1.0
 
 
 def test_random_agent_runs_without_a_model(tmp_path):

@@ -446,8 +446,12 @@ def _base_record(job: _Job, identity: dict[str, Any]) -> dict[str, Any]:
         "model": identity,
         "vp2_version": vp2.__version__,
         "device": str(_STATE.device) if _STATE else None,
-        "finished_at": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "finished_at": _now(),
     }
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
 
 
 def _run_job(job: _Job) -> _Outcome:
@@ -483,11 +487,15 @@ def _run_job(job: _Job) -> _Outcome:
         if broken is not None:
             broken.close()
         record.update(
-            success=None, cost=getattr(agent, "cost_kind", None), error=_error(exc, "trial")
+            success=None,
+            cost=getattr(agent, "cost_kind", None),
+            error=_error(exc, "trial"),
+            finished_at=_now(),
         )
         return _Outcome(job.key, record)
     record.update(result.record())
     record["error"] = None
+    record["finished_at"] = _now()  # _base_record stamped the trial's start
     return _Outcome(job.key, record, result=result)
 
 
