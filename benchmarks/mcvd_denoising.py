@@ -12,6 +12,15 @@ the MSE of the implied one-step estimate of the clean frames (pixels in [0, 1], 
 sampler clips them). A sampler can only turn noise into frames if the high-``t`` rows are
 good: an estimate of the clean frames that is wrong by more than the signal it carries there
 leaves the chain's state noise-like all the way down.
+
+``--shuffled``: does the denoiser use its actions? Each clip's window is noised at ``--grid``
+evenly spaced timesteps (the same noise for both) and denoised once conditioned on its own
+actions and once on another clip's (a random derangement; the context frames kept). The
+per-clip mean noise MSE over the grid is the training objective, DDPM's "simple" loss, a
+reweighted variational bound on the likelihood of the true frames: lower under the true
+actions means the model's predictive distribution puts more mass on what the actions did.
+Reported per timestep and overall, with the ratio's bootstrap interval, clips won and a sign
+test (as ``action_conditioning.py``, which compares sampled frames instead).
 """
 
 from __future__ import annotations
@@ -21,6 +30,7 @@ import argparse
 import numpy as np
 import torch
 
+from action_conditioning import _derangement, ratio_statistics  # benchmarks/ is on sys.path
 from vp2.data.loader import ClipDataset
 from vp2.models.registry import load_model
 
@@ -32,6 +42,9 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=8)
     parser.add_argument("--timesteps", type=int, nargs="+", default=[0, 10, 100, 300, 600, 999])
     parser.add_argument("--raw", action="store_true", help="the trained weights, not the EMA")
+    parser.add_argument("--shuffled", action="store_true",
+                        help="compare the noise MSE under true and other clips' actions")
+    parser.add_argument("--grid", type=int, default=10, help="timesteps of the --shuffled grid")
     args = parser.parse_args()
     torch.set_num_threads(1)
     overrides = {"use_ema": False} if args.raw else None
@@ -59,6 +72,41 @@ def main() -> None:
             x0 = ((noisy - (1 - ab).sqrt() * eps) / ab.sqrt()).clamp(-1, 1)
             print(f"| {t} | {float(ab.sqrt()):.3f} | {float((eps - noise).square().mean()):.3f} | "
                   f"{float(((x0 - target) / 2).square().mean()):.4f} |")
+    if args.shuffled:
+        compare_actions(model, context, target, actions, args.grid)
+
+
+def compare_actions(model, context, target, actions, grid: int) -> None:
+    """Per-clip noise MSE over a timestep grid, own vs deranged actions (see the docstring)."""
+    w = model.config.window
+    n = len(target)
+    perm = torch.from_numpy(_derangement(n, np.random.default_rng(0)))
+    cond_true = model._condition(context, actions[:, : w + 1])
+    cond_shuf = model._condition(context, actions[perm][:, : w + 1])
+    gen = torch.Generator().manual_seed(1)
+    steps = np.linspace(0, model.config.num_timesteps - 1, grid).round().astype(int)
+    per_clip = {"true": np.zeros(n), "shuffled": np.zeros(n)}
+    print(f"\nnoise MSE under own vs other clips' actions, {grid} timesteps, same noise")
+    print("| t | own actions | other actions | ratio |")
+    print("|---|---|---|---|")
+    with torch.no_grad():
+        for t in steps:
+            noise = torch.randn(target.shape, generator=gen)
+            ab = model.alphas_cumprod[int(t)]
+            noisy = ab.sqrt() * target + (1 - ab).sqrt() * noise
+            tt = torch.full((n,), int(t))
+            row = {}
+            for name, cond in (("true", cond_true), ("shuffled", cond_shuf)):
+                err = (model._denoiser(noisy, tt, cond) - noise).square().flatten(1).mean(1)
+                per_clip[name] += err.numpy() / len(steps)
+                row[name] = float(err.mean())
+            print(f"| {t} | {row['true']:.4f} | {row['shuffled']:.4f} | "
+                  f"{row['shuffled'] / row['true']:.3f} |")
+    st = ratio_statistics(per_clip["true"], per_clip["shuffled"])
+    print(f"| all (simple loss) | {per_clip['true'].mean():.4f} | "
+          f"{per_clip['shuffled'].mean():.4f} | **{st['ratio']:.3f}** "
+          f"[{st['ci'][0]:.3f}, {st['ci'][1]:.3f}] |")
+    print(f"clips where own < other: {st['wins']}/{st['n']}, sign test p = {st['sign_p']:.2g}")
 
 
 if __name__ == "__main__":

@@ -63,7 +63,7 @@ OWN_PARAMS = {
     ("struct_vrnn", "tiny"): 103_339,
     ("mcvd", "default"): 45_038_159,
     ("mcvd", "small"): 2_936_367,
-    ("mcvd", "tiny"): 583_327,
+    ("mcvd", "tiny"): 1_599_119,
     ("maskvit", "default"): 30_480_932,
     ("maskvit", "small"): 4_199_844,
     ("maskvit", "tiny"): 301_652,

@@ -34,6 +34,23 @@ def test_architecture_follows_model_specs():
     assert model.num_parameters() == pytest.approx(45.0e6, rel=0.02)
 
 
+def test_presets_leave_the_output_head_room_for_the_noise(caplog):
+    # The head conv(SiLU(GroupNorm(h))) must reproduce 3W = 15 noise channels; with one
+    # channel each, SiLU explains only corr(x, SiLU(x))^2 of their variance.
+    x = torch.randn(1_000_000, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    corr = torch.corrcoef(torch.stack([x, torch.nn.functional.silu(x)]))[0, 1]
+    assert float(1 - corr**2) == pytest.approx(0.20, abs=0.005)  # the floor measured at base 16
+    for preset in ("default", "small", "tiny"):
+        with torch.device("meta"):
+            model = build_model("mcvd", preset, action_dim=4)
+        assert model.config.base_channels >= 2 * 3 * model.config.window, preset
+        assert model.unet.out_norm.num_channels >= 30, preset
+    assert not [r for r in caplog.records if "base_channels" in r.getMessage()]
+    with caplog.at_level("WARNING", logger="vp2.models.mcvd"):
+        build_model("mcvd", "tiny", base_channels=16, **SMALL)
+    assert any("base_channels=16 < 30" in r.getMessage() for r in caplog.records)
+
+
 def test_noise_schedule_and_sampling_steps():
     model = build_model("mcvd", "tiny", **SMALL)
     ab = model.alphas_cumprod
