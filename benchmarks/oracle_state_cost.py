@@ -1,4 +1,4 @@
-"""Is it the planner or the pixel cost? The tabletop oracle with a cost on the simulator state.
+"""Is it the planner or the pixel cost? The oracle with a cost on the simulator state.
 
     MUJOCO_GL=egl OMP_NUM_THREADS=1 .venv/bin/python benchmarks/oracle_state_cost.py \
         --instances 1 [--cost objects|shaped] [--tasks tabletop/push_large_cube ...] [--json out.json]
@@ -15,6 +15,11 @@ seconds of physics per step. If the planner succeeds with this cost where the pi
 oracle fails on the same instances, the failure is the pixel cost's, not MPPI's, the 10-step
 horizon's or the instances'. The cost is in cm² so that score differences between candidates
 are of the size of the pixel cost's (tens to hundreds): MPPI's γ keeps its SPEC value.
+
+RoboDesk's ``<object>_off_table`` tasks work the same way (``--tasks
+robodesk/flat_block_off_table``): the objects are the ball and the two blocks, their goal
+positions those of the instance's goal state (the target object on the floor, the others where
+they were), the hand is the end-effector site. ``--samples`` sets MPPI's samples (SPEC: 200).
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from vp2.benchmark.agent import Observation, PlannerConfig, build_optimizer  # n
 from vp2.benchmark.trial import ControlTrial  # noqa: E402
 from vp2.data.suite import TaskInstance, TaskSuite  # noqa: E402
 from vp2.envs import make_env_from_metadata, split_name  # noqa: E402
+from vp2.envs.robodesk import OBJECTS as ROBODESK_OBJECTS  # noqa: E402
 from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv  # noqa: E402
 from vp2.planning.optimizers import shift_plan  # noqa: E402
 
@@ -45,18 +51,28 @@ class StateCostAgent:
     """
 
     name = "state_cost_mppi"
-    action_dim = 4
     image_size = 64
     cost_kind = "none"  # no image cost: the score is computed from simulator states
 
-    def __init__(self, instance: TaskInstance, cost: str, seed: int):
+    def __init__(self, instance: TaskInstance, cost: str, seed: int, num_samples: int = 200):
         self.instance, self.cost, self.seed = instance, cost, seed
-        self.goal = TabletopEnv.object_positions_from_state(instance.goal_state)
-        self.pushed = OBJECT_NAMES.index(split_name(instance.task)[1].removeprefix("push_"))
+        self.num_samples = num_samples
+        env_name, task = split_name(instance.task)
         self.sim = make_env_from_metadata(instance.env_meta, observation_size=None)
+        self.action_dim = self.sim.action_dim
+        if env_name == "tabletop":
+            self.goal = TabletopEnv.object_positions_from_state(instance.goal_state)
+            self.pushed = OBJECT_NAMES.index(task.removeprefix("push_"))
+        elif task.endswith("_off_table"):
+            self.sim.reset_to(instance.goal_state)
+            self.goal = object_positions(self.sim)
+            self.pushed = ROBODESK_OBJECTS.index(task.removesuffix("_off_table"))
+        else:
+            raise ValueError(f"{instance.task}: the state cost covers tabletop pushes and "
+                             "RoboDesk's <object>_off_table tasks")
 
     def reset(self, task: str, goal_image: np.ndarray, seed: int) -> None:
-        self.optimizer = build_optimizer(task, PlannerConfig())
+        self.optimizer = build_optimizer(task, PlannerConfig(num_samples=self.num_samples))
         # Seeded with the control-run seed itself (not the trial seed the trial passes), as
         # the runs recorded in docs/benchmark.md were.
         self.generator = torch.Generator().manual_seed(self.seed)
@@ -70,10 +86,10 @@ class StateCostAgent:
                 cost = 0.0
                 for a in actions:
                     self.sim.step(a)
-                    positions = self.sim.object_positions()
+                    positions = object_positions(self.sim)
                     cost += float(np.sum((positions - self.goal) ** 2))
                     if self.cost == "shaped":
-                        reach = self.sim.end_effector_position() - positions[self.pushed]
+                        reach = hand_position(self.sim) - positions[self.pushed]
                         cost += float(np.sum(reach**2))
                 scores[i] = -1e4 * cost  # cm²
             return torch.from_numpy(scores)
@@ -94,12 +110,25 @@ class StateCostAgent:
         self.sim.close()
 
 
-def run_trial(inst: TaskInstance, seed: int, cost: str) -> dict:
-    agent = StateCostAgent(inst, cost, seed)
+def object_positions(sim) -> np.ndarray:
+    """``(objects, 3)``: the tabletop's 4 objects, or RoboDesk's ball and two blocks."""
+    if isinstance(sim, TabletopEnv):
+        return sim.object_positions()
+    return np.stack([sim.body_pos(name) for name in ROBODESK_OBJECTS])
+
+
+def hand_position(sim) -> np.ndarray:
+    if isinstance(sim, TabletopEnv):
+        return sim.end_effector_position()
+    return sim.end_effector_pos
+
+
+def run_trial(inst: TaskInstance, seed: int, cost: str, num_samples: int = 200) -> dict:
+    agent = StateCostAgent(inst, cost, seed, num_samples)
     env = inst.make_env(observation_size=None)
     try:
         result = ControlTrial(inst, agent, seed, stop_on_success=True, env=env).run()
-        distance = TabletopEnv.goal_distance(env.object_positions(), inst.goal_state)
+        distance = float(np.max(np.linalg.norm(object_positions(env) - agent.goal, axis=-1)))
     finally:
         agent.close()
         env.close()
@@ -123,6 +152,7 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=0, help="index of the first instance")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cost", choices=("objects", "shaped"), default="objects")
+    parser.add_argument("--samples", type=int, default=200, help="MPPI samples (SPEC: 200)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -133,7 +163,7 @@ def main() -> None:
     print("|---|---|---|---|---|")
     for task in tasks:
         for inst in suite.for_task(task)[args.first : args.first + args.instances]:
-            r = run_trial(inst, args.seed, args.cost)
+            r = run_trial(inst, args.seed, args.cost, args.samples)
             results.append(r)
             step = f"yes ({r['success_step']})" if r["success"] else "no"
             print(f"| {task} | {inst.index} | {step} | {100 * r['final_max_distance_m']:.1f} | "
