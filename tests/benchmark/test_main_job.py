@@ -24,6 +24,7 @@ def test_main_job_runs_each_agent_and_writes_the_table(tmp_path):
     assert len(rows) == 1 and rows[0].startswith("| tabletop/push_sphere |")
     assert "repeat_last_frame" in table.splitlines()[0] and "random actions" in table
     assert path.read_text().count("| tabletop/push_sphere |") == 1
+    assert "(1 trials run)" in path.read_text()
     for name in ("repeat_last_frame", "random"):
         records = read_trials(tmp_path / "main" / name)
         assert [(r["task"], r["instance"], r["seed"]) for r in records] == [
@@ -31,8 +32,9 @@ def test_main_job_runs_each_agent_and_writes_the_table(tmp_path):
         ]
         assert len(records[0]["success_steps"]) == 3
     # Re-running resumes: nothing is run twice.
-    run_main_job(_config(tmp_path), gallery=False)
+    _, path = run_main_job(_config(tmp_path), gallery=False)
     assert len(read_trials(tmp_path / "main" / "random")) == 1
+    assert "(0 trials run, 1 done earlier)" in path.read_text()
 
 
 def test_shipped_model_runs_only_on_its_env(tmp_path, monkeypatch):

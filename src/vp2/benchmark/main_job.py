@@ -128,6 +128,12 @@ def comparison_table(results: dict[str, RunResult]) -> str:
     return "\n".join(lines + ([""] + notes if notes else []))
 
 
+def _took(name: str, seconds: float, result: RunResult) -> str:
+    """``"svg_prime 4.2 min (11 trials run)"``; a resumed run says what it found done."""
+    done = f", {result.num_skipped} done earlier" if result.num_skipped else ""
+    return f"{name} {seconds / 60:.1f} min ({result.num_run} trials run{done})"
+
+
 def run_main_job(config: MainJobConfig, gallery: bool = True) -> tuple[str, Path]:
     """Runs the main job; returns the comparison table and the path of ``main.md``."""
     out = Path(config.out)
@@ -144,7 +150,7 @@ def run_main_job(config: MainJobConfig, gallery: bool = True) -> tuple[str, Path
         results[name] = run_benchmark(run_config)
         timings[name] = time.perf_counter() - t0
     table = comparison_table(results)
-    took = ", ".join(f"{n} {t / 60:.1f} min" for n, t in timings.items())
+    took = ", ".join(_took(n, t, results[n]) for n, t in timings.items())
     text = (f"# vp2 main: success per task category\n\n{table}\n\n"
             f"Success = the task's criterion held at some step of a 15-step trial "
             f"(cell: success rate (trials)). Wall time: {took}.\n\n"
