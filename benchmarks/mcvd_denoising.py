@@ -65,15 +65,20 @@ def main() -> None:
     print("|---|---|---|---|")
     with torch.no_grad():
         for t in args.timesteps:
-            noise = torch.randn(target.shape, generator=gen)
-            ab = model.alphas_cumprod[t]
-            noisy = ab.sqrt() * target + (1 - ab).sqrt() * noise
+            noise, noisy, ab = _noised(model, target, t, gen)
             eps = model._denoiser(noisy, torch.full((len(items),), t), cond)
             x0 = ((noisy - (1 - ab).sqrt() * eps) / ab.sqrt()).clamp(-1, 1)
             print(f"| {t} | {float(ab.sqrt()):.3f} | {float((eps - noise).square().mean()):.3f} | "
                   f"{float(((x0 - target) / 2).square().mean()):.4f} |")
     if args.shuffled:
         compare_actions(model, context, target, actions, args.grid)
+
+
+def _noised(model, target: torch.Tensor, t: int, gen: torch.Generator):
+    """``(noise, x_t, alpha_bar_t)``: ``target`` noised to timestep ``t`` of the chain."""
+    noise = torch.randn(target.shape, generator=gen)
+    ab = model.alphas_cumprod[t]
+    return noise, ab.sqrt() * target + (1 - ab).sqrt() * noise, ab
 
 
 def compare_actions(model, context, target, actions, grid: int) -> None:
@@ -91,9 +96,7 @@ def compare_actions(model, context, target, actions, grid: int) -> None:
     print("|---|---|---|---|")
     with torch.no_grad():
         for t in steps:
-            noise = torch.randn(target.shape, generator=gen)
-            ab = model.alphas_cumprod[int(t)]
-            noisy = ab.sqrt() * target + (1 - ab).sqrt() * noise
+            noise, noisy, _ = _noised(model, target, int(t), gen)
             tt = torch.full((n,), int(t))
             row = {}
             for name, cond in (("true", cond_true), ("shuffled", cond_shuf)):

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from vp2.benchmark.results import Summary
 from vp2.benchmark.runner import RunConfig, RunResult, run_benchmark
-from vp2.benchmark.trial import NUM_CONTROL_STEPS
+from vp2.data.suite import NUM_CONTROL_STEPS
 from vp2.utils.io import atomic_path
 
 log = logging.getLogger(__name__)

@@ -446,7 +446,6 @@ def _base_record(job: _Job, identity: dict[str, Any]) -> dict[str, Any]:
         "model": identity,
         "vp2_version": vp2.__version__,
         "device": str(_STATE.device) if _STATE else None,
-        "finished_at": _now(),
     }
 
 
@@ -455,7 +454,14 @@ def _now() -> str:
 
 
 def _run_job(job: _Job) -> _Outcome:
-    """Runs one trial in the current process (a worker, or the driver with one worker)."""
+    """Runs one trial in the current process (a worker, or the driver with one worker); its
+    record is stamped ``finished_at`` when it ends, however it ends."""
+    outcome = _attempt_trial(job)
+    outcome.record["finished_at"] = _now()
+    return outcome
+
+
+def _attempt_trial(job: _Job) -> _Outcome:
     assert _STATE is not None, "worker state is not initialised"
     cfg = _STATE.config
     fallback_identity = {"spec": cfg.model, "args": dict(cfg.model_args)}
@@ -487,15 +493,11 @@ def _run_job(job: _Job) -> _Outcome:
         if broken is not None:
             broken.close()
         record.update(
-            success=None,
-            cost=getattr(agent, "cost_kind", None),
-            error=_error(exc, "trial"),
-            finished_at=_now(),
+            success=None, cost=getattr(agent, "cost_kind", None), error=_error(exc, "trial")
         )
         return _Outcome(job.key, record)
     record.update(result.record())
     record["error"] = None
-    record["finished_at"] = _now()  # _base_record stamped the trial's start
     return _Outcome(job.key, record, result=result)
 
 
@@ -814,7 +816,7 @@ def run_benchmark(config: RunConfig) -> RunResult:
                         "traceback": "",
                     }
                     record = {**_base_record(job, {"spec": config.model}), "success": None}
-                    outcome = _Outcome(job.key, {**record, "error": error})
+                    outcome = _Outcome(job.key, {**record, "error": error, "finished_at": _now()})
                 if outcome.fatal:
                     err = outcome.record["error"]
                     raise RuntimeError(

@@ -116,18 +116,23 @@ class MCVDConfig:
         factor = 2 ** (len(self.channel_mult) - 1)
         if self.image_size % factor:
             raise ValueError(f"mcvd: image_size must be a multiple of {factor}")
-        if self.base_channels < 2 * 3 * self.window:
+        if self.base_channels < self.min_base_channels:
             log.warning(
                 "mcvd: base_channels=%d < %d (2 x 3 x window): the U-Net's output SiLU cannot "
                 "pass the noise through and training is likely to stall near eps-MSE 0.2; "
                 "use base_channels >= %d",
-                self.base_channels, 6 * self.window, 6 * self.window,
+                self.base_channels, self.min_base_channels, self.min_base_channels,
             )
         if not 1 <= self.sampling_steps <= self.num_timesteps:
             raise ValueError(
                 f"mcvd: sampling_steps must be in [1, {self.num_timesteps}], "
                 f"got {self.sampling_steps}"
             )
+
+    @property
+    def min_base_channels(self) -> int:
+        """Two channels per noise channel of a window (see ``base_channels``)."""
+        return 2 * 3 * self.window
 
     @property
     def cond_channels(self) -> int:
