@@ -314,6 +314,39 @@ class TabletopWorld(ManipulationEnv):
         # camera and would cost a second scene pass per frame for a faint mirror image.
         model.mat_reflectance[:] = 0.0
 
+    def edit_model_xml(self, xml_str: str) -> str:
+        # robosuite's last XML processor before compiling: remember the exact MJCF that the
+        # physics model is compiled from, so that a render model can be built from it.
+        xml = super().edit_model_xml(xml_str)
+        self.compiled_xml = xml
+        return xml
+
+    def render_model(self, mesh_reduction: float) -> mujoco.MjModel:
+        """A render-only model of this world: the MJCF the physics model was compiled from,
+        its large visual-only meshes (the Panda's and its pedestal's) decimated by
+        ``mesh_reduction`` (:func:`vp2.envs.meshes.simplified_render_model`).
+
+        Built once per process and XML (about a second; the decimated meshes are cached on
+        disk); the caller gets a copy. The visual changes this world makes to its compiled
+        model (hidden geom groups, sites, reflectance, textures) are applied by
+        :class:`vp2.envs.rendering.Renderer`, which copies them from the physics model.
+        """
+        import copy
+        import hashlib
+
+        from vp2.envs.meshes import simplified_render_model
+
+        key = (hashlib.sha256(self.compiled_xml.encode()).hexdigest(), float(mesh_reduction))
+        model = _RENDER_MODELS.get(key)
+        if model is None:
+            model = simplified_render_model(
+                mujoco.MjSpec.from_string(self.compiled_xml),
+                target_reduction=mesh_reduction,
+                body_prefixes=RENDER_MESH_BODIES,
+            )
+            _RENDER_MODELS[key] = model
+        return copy.copy(model)
+
     def reward(self, action: np.ndarray | None = None) -> float:
         """Unused by the benchmark (success is judged against a goal state)."""
         return 0.0
@@ -327,6 +360,12 @@ class TabletopWorld(ManipulationEnv):
         model = self.sim.model._model
         model.geom_matid[self.object_visual_geoms] = self.texture_material_ids[texture_ids]
         model.geom_rgba[self.object_visual_geoms] = _DEFAULT_RGBA
+
+
+#: The bodies whose visual-only meshes the render model simplifies: robosuite's Panda (arm,
+#: gripper) and its mount.
+RENDER_MESH_BODIES = ("robot0_", "gripper0_", "fixed_mount0_")
+_RENDER_MODELS: dict[tuple[str, float], mujoco.MjModel] = {}
 
 
 def _element(tag: str, **attrib: str) -> ET.Element:

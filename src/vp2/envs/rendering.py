@@ -2,9 +2,12 @@
 
 Software rendering (MuJoCo's EGL backend on Mesa) is the CPU bottleneck of the benchmark, and
 most of its cost is the shadow passes (each shadow-casting light re-draws every mesh into a
-shadow map) and multisampling. A :class:`RenderSpec` therefore fixes, besides the camera, the
-quality knobs that trade fidelity for speed; each environment documents the values it chose
-and their measured fidelity against :meth:`RenderSpec.full_quality` (``docs/rendering.md``).
+shadow map and once more lit) and multisampling; with the robots' original visual meshes the
+frame is geometry-bound, so environments render a render-only model with simplified meshes
+(:mod:`vp2.envs.meshes`, the ``render_model`` of :class:`Renderer`). A :class:`RenderSpec`
+therefore fixes, besides the camera, the quality knobs that trade fidelity for speed; each
+environment documents the values it chose and their measured fidelity against
+:meth:`RenderSpec.full_quality` (docs/robodesk.md, docs/tabletop.md).
 
 The :class:`Renderer` owns one MuJoCo GL context per (model, size) and is reused for every
 frame; creating a context per frame (as the ``robodesk`` package does) costs more than the
@@ -56,6 +59,17 @@ class RenderSpec:
         multisamples: MSAA samples of the offscreen buffer (MuJoCo's default is 4).
         reflection: draw reflective materials' reflections.
         skybox: draw the skybox.
+        mesh_reduction: fraction of the triangles removed from the large visual-only meshes
+            of the render model (:func:`vp2.envs.meshes.simplified_render_model`; the
+            environment builds that model and passes it to :class:`Renderer` as
+            ``render_model``; the physics model is never touched). ``0`` draws the original
+            meshes; a :class:`Renderer` given no ``render_model`` draws the model's own meshes
+            whatever this says.
+        plane_spacing: side of the squares MuJoCo tessellates planes into for drawing (the
+            third ``size`` of a plane geom; rendering only); ``None`` keeps the model's.
+        numslices, numstacks, numquads: tessellation of the built-in primitives (spheres,
+            capsules, cylinders; boxes), MuJoCo's ``visual/quality``; ``None`` keeps the
+            model's (28, 16, 4 by default).
     """
 
     camera: FreeCamera | str
@@ -67,12 +81,19 @@ class RenderSpec:
     multisamples: int = 4
     reflection: bool = True
     skybox: bool = True
+    mesh_reduction: float = 0.0
+    plane_spacing: float | None = None
+    numslices: int | None = None
+    numstacks: int | None = None
+    numquads: int | None = None
 
     def full_quality(self) -> RenderSpec:
-        """The same camera at MuJoCo's default quality: the fidelity reference."""
+        """The same camera at MuJoCo's default quality with the original meshes: the fidelity
+        reference."""
         return dataclasses.replace(
             self, shadow_size=4096, shadow_lights=None, multisamples=4, reflection=True,
-            skybox=True,
+            skybox=True, mesh_reduction=0.0, plane_spacing=None, numslices=None,
+            numstacks=None, numquads=None,
         )
 
     def render_size(self, height: int, width: int) -> tuple[int, int]:
@@ -89,6 +110,13 @@ def configure_model(model: mujoco.MjModel, spec: RenderSpec, height: int, width:
     model.vis.quality.offsamples = spec.multisamples
     model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
     model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+    for knob in ("numslices", "numstacks", "numquads"):
+        value = getattr(spec, knob)
+        if value is not None:
+            setattr(model.vis.quality, knob, value)
+    if spec.plane_spacing is not None:
+        planes = model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
+        model.geom_size[planes, 2] = spec.plane_spacing
     if spec.shadow_lights is not None:
         cast = np.zeros(model.nlight, dtype=model.light_castshadow.dtype)
         for i in spec.shadow_lights:
@@ -149,14 +177,35 @@ class Renderer:
     The renderer works on its own copy of the model (quality settings must not leak into the
     physics model) and keeps one GL context per raw render size.
 
+    With ``render_model`` (the same MJCF compiled with simplified visual meshes, see
+    :func:`vp2.envs.meshes.simplified_render_model`) the renderer draws that model instead,
+    posed from the physics state on a private ``MjData``: before each frame it copies
+    ``qpos`` and ``mocap_pos``/``mocap_quat`` from the given data and runs ``mj_kinematics``
+    and ``mj_camlight`` (microseconds). It does not read the physics data's kinematics at
+    all, so a frame is a function of the state. The visual fields an environment may change
+    on its physics model (geom groups, colours and materials, material reflectance, lights,
+    the model statistics that scale the camera's clipping and shadow frusta) are copied from
+    ``model`` when the renderer is created, and the per-instance ones
+    (``_DYNAMIC_VISUAL_FIELDS``) before every frame.
+
     Args:
         model: the simulation model. Only its visual fields are copied and modified.
         spec: the render specification.
+        render_model: optional render-only model with the same bodies, joints and geoms.
     """
 
-    def __init__(self, model: mujoco.MjModel, spec: RenderSpec):
+    def __init__(
+        self, model: mujoco.MjModel, spec: RenderSpec, render_model: mujoco.MjModel | None = None
+    ):
         self.spec = spec
         self._model = model
+        self._render_model = None
+        self._render_data: mujoco.MjData | None = None
+        if render_model is not None:
+            _check_compatible(model, render_model)
+            self._render_model = copy.copy(render_model)
+            _copy_visual_fields(model, self._render_model)
+            self._render_data = mujoco.MjData(self._render_model)
         self._contexts: dict[tuple[int, int], mujoco.Renderer] = {}
         _LIVE_RENDERERS.add(self)
         self._camera: mujoco.MjvCamera | str
@@ -178,7 +227,8 @@ class Renderer:
         ctx = self._contexts.get(key)
         if ctx is None:
             # A private copy so that the quality knobs never touch the physics model.
-            model = copy.copy(self._model)  # a deep copy of the model's arrays
+            source = self._model if self._render_model is None else self._render_model
+            model = copy.copy(source)  # a deep copy of the model's arrays
             configure_model(model, self.spec, height, width)
             ctx = mujoco.Renderer(model, height=height, width=width)
             _register_exit_hook_after_gl()
@@ -195,6 +245,8 @@ class Renderer:
         rh, rw = self.spec.render_size(height, width)
         ctx = self._context(rh, rw)
         self._sync_visuals(ctx.model)
+        if self._render_data is not None:
+            data = self._pose(data)
         ctx.update_scene(data, camera=self._camera)
         image = ctx.render()
         if self.spec.crop_box is None:
@@ -203,6 +255,16 @@ class Renderer:
         box = tuple(c * scale for c in self.spec.crop_box)
         pil = Image.fromarray(image).crop(box)
         return np.asarray(pil.resize((width, height), resample=Image.Resampling.LANCZOS))
+
+    def _pose(self, data: mujoco.MjData) -> mujoco.MjData:
+        pose = self._render_data
+        pose.qpos[:] = data.qpos
+        if self._render_model.nmocap:
+            pose.mocap_pos[:] = data.mocap_pos
+            pose.mocap_quat[:] = data.mocap_quat
+        mujoco.mj_kinematics(self._render_model, pose)
+        mujoco.mj_camlight(self._render_model, pose)
+        return pose
 
     def _sync_visuals(self, render_model: mujoco.MjModel) -> None:
         # Environments may re-texture objects per instance by switching materials at run time;
@@ -214,6 +276,39 @@ class Renderer:
         for ctx in self._contexts.values():
             ctx.close()
         self._contexts.clear()
+
+
+_STRUCTURE_COUNTS = ("nq", "nbody", "njnt", "ngeom", "nsite", "nmat", "ntex", "nlight", "ncam",
+                     "nmocap")
+_STRUCTURE_FIELDS = ("geom_type", "geom_bodyid", "body_parentid", "jnt_type", "jnt_qposadr")
+#: Visual fields copied from the physics model into a separate render model at creation:
+#: everything an environment may have changed on its compiled model, and the statistics from
+#: which MuJoCo scales the near/far clipping planes and the directional lights' shadow frusta.
+_STATIC_VISUAL_FIELDS = (
+    "geom_group", "geom_rgba", "geom_matid", "site_group", "site_rgba", "mat_rgba", "mat_texid",
+    "mat_reflectance", "mat_emission", "mat_specular", "mat_shininess", "light_castshadow",
+    "light_active", "light_ambient", "light_diffuse", "light_specular", "cam_fovy",
+)
+_STAT_FIELDS = ("extent", "center", "meansize")
+
+
+def _check_compatible(model: mujoco.MjModel, render_model: mujoco.MjModel) -> None:
+    for n in _STRUCTURE_COUNTS:
+        if getattr(model, n) != getattr(render_model, n):
+            raise ValueError(
+                f"render model does not match the physics model: {n} {getattr(render_model, n)}"
+                f" != {getattr(model, n)}"
+            )
+    for field in _STRUCTURE_FIELDS:
+        if not np.array_equal(getattr(model, field), getattr(render_model, field)):
+            raise ValueError(f"render model does not match the physics model in {field}")
+
+
+def _copy_visual_fields(model: mujoco.MjModel, render_model: mujoco.MjModel) -> None:
+    for field in _STATIC_VISUAL_FIELDS + _DYNAMIC_VISUAL_FIELDS:
+        getattr(render_model, field)[:] = getattr(model, field)
+    for field in _STAT_FIELDS:
+        setattr(render_model.stat, field, getattr(model.stat, field))
 
 
 def _resize(image: np.ndarray, height: int, width: int) -> np.ndarray:

@@ -41,6 +41,7 @@ import numpy as np
 
 from vp2.envs._ik import SitePositionIK
 from vp2.envs.base import Env
+from vp2.envs.meshes import simplified_render_model
 from vp2.envs.rendering import FreeCamera, Renderer, RenderSpec
 
 #: The seven task categories.
@@ -69,18 +70,27 @@ SLIDE_OPEN_ABOVE = 0.55
 DRAWER_OPEN_BELOW = -0.2
 OFF_TABLE_BELOW = 0.6  # object height (m)
 DID_NOT_MOVE_WITHIN = 0.01  # m, for the objects that must stay put
+#: The paper's success-classifier label (SPEC §6): the package's dense reward summed over an
+#: env step's 50 action repeats is at least this (a mean dense reward >= 0.6).
+DENSE_LABEL_THRESHOLD = 30.0
 # Initial-state distribution of the package (``RoboDesk.reset``).
 INIT_ROBOT_QPOS = np.array([-0.30, -0.4, 0.28, -2.5, 0.13, 1.87, 0.91, 0.01, 0.01])
 INIT_ROBOT_NOISE = 0.15  # times a uniform draw over each actuator's control range
 
-#: The benchmark camera (SPEC §1.1) and the quality settings chosen for software rendering.
-#: All three lights must cast shadows (with two the 64x64 image is ~9/255 off, with none ~38),
-#: and each shadow-casting light re-draws the arm's 134k-triangle meshes, so the savings come
-#: from elsewhere: no reflection pass (the floor's reflection is barely visible: 0.1/255), no
-#: multisampling (the 120 px render is resized anyway: ~5/255), 512² shadow maps (40% cheaper
-#: than 4096² for 1.4/255). Measured (``benchmarks/bench_robodesk.py render``, 98 varied
-#: states): mean absolute error 6.1/255 (max 6.6) against ``full_quality()`` at 64x64, 3.5x
-#: cheaper. See docs/robodesk.md.
+#: The benchmark camera (SPEC §1.1) and the quality settings chosen for software rendering
+#: (``benchmarks/bench_render_floor.py``, docs/robodesk.md "Rendering"). The renderer draws a
+#: render-only model whose Panda visual meshes (134k of the scene's 142k triangles) are
+#: decimated to 5% (``mesh_reduction=0.95``, :func:`load_render_model`; physics untouched);
+#: the floor plane is tessellated into 0.5 m squares instead of 0.1 m (25x fewer quads per
+#: pass) and the built-in spheres/cylinders/boxes more coarsely (16 slices, 8 stacks, 1 quad
+#: per box face). All three lights still cast shadows (the shadows are large areas of the
+#: image: with two shadow lights ~12/255 off, with none ~40/255), 512² shadow maps, no
+#: multisampling (the 120 px render is LANCZOS-resized anyway), no reflection pass. Each
+#: shadow-casting light costs a depth pass and a lighting pass, so at the geometry floor the
+#: shadows are still ~85% of the frame. Measured (2026-11-24, 2-core VM, llvmpipe, load ~4):
+#: mean absolute error 6.53/255 (max 7.23) against ``full_quality()`` with the original
+#: meshes over 98 varied states (budget 8/255), 18.8 ms per 64x64 frame vs 107.6 ms with the
+#: previous settings and original meshes. See docs/robodesk.md.
 RENDER_SPEC = RenderSpec(
     camera=FreeCamera(distance=1.8, azimuth=90.0, elevation=-60.0, lookat=(0.0, 0.535, 1.1)),
     min_render_size=120,
@@ -91,6 +101,11 @@ RENDER_SPEC = RenderSpec(
     multisamples=0,
     reflection=False,
     skybox=True,
+    mesh_reduction=0.95,
+    plane_spacing=0.5,
+    numslices=16,
+    numstacks=8,
+    numquads=1,
 )
 
 
@@ -107,7 +122,11 @@ def asset_path() -> Path:
     return Path(next(iter(spec.submodule_search_locations))) / "assets" / "desk.xml"
 
 
+#: The bodies whose visual-only meshes the render model simplifies: the Panda's.
+RENDER_MESH_BODIES = ("panda0_",)
+
 _BASE_MODEL: mujoco.MjModel | None = None
+_RENDER_MODELS: dict[float, mujoco.MjModel] = {}
 
 
 def load_model() -> mujoco.MjModel:
@@ -117,6 +136,23 @@ def load_model() -> mujoco.MjModel:
         _BASE_MODEL = mujoco.MjModel.from_xml_path(os.fspath(asset_path()))
     # copy.copy deep-copies the model's arrays: an env may change its own options freely.
     return copy.copy(_BASE_MODEL)
+
+
+def load_render_model(mesh_reduction: float | None = None) -> mujoco.MjModel:
+    """The render-only model: ``desk.xml`` with its large visual-only meshes (the Panda's)
+    decimated by ``mesh_reduction`` (default ``RENDER_SPEC.mesh_reduction``).
+
+    Built once per process (about 0.3 s, the decimated meshes cached on disk, see
+    :mod:`vp2.envs.meshes`); the caller gets a copy. Never used for physics.
+    """
+    reduction = RENDER_SPEC.mesh_reduction if mesh_reduction is None else float(mesh_reduction)
+    model = _RENDER_MODELS.get(reduction)
+    if model is None:
+        model = simplified_render_model(
+            asset_path(), target_reduction=reduction, body_prefixes=RENDER_MESH_BODIES
+        )
+        _RENDER_MODELS[reduction] = model
+    return copy.copy(model)
 
 
 class RoboDeskEnv(Env):
@@ -169,6 +205,11 @@ class RoboDeskEnv(Env):
         self.state_size = self._integration_size + 3 * len(OBJECTS)
         self._original_pos = np.zeros((len(OBJECTS), 3))
         self._success_fn = self._make_success_fn(task)
+        self._dense_fn = self._make_dense_reward_fn(task)
+        #: When true, ``step`` sums the package's dense reward over its 50 action repeats into
+        #: ``info["dense_reward"]`` (data collection for the classifiers' paper label; off by
+        #: default to keep the planner's step lean).
+        self.track_dense_reward = False
         # Views used on every physics step, created once (indexing costs microseconds, and a
         # step makes 500 of them).
         self._qfrc_applied = self.data.qfrc_applied[:NUM_ROBOT_JOINTS]
@@ -294,12 +335,20 @@ class RoboDeskEnv(Env):
         self, action: np.ndarray
     ) -> tuple[np.ndarray | None, float, bool, bool, dict[str, Any]]:
         action = self.check_action(action)
-        self._simulate(action)
+        dense = self._simulate(action)
         success = self.is_success(self._goal_state)
-        return self._observation(), float(success), False, False, {"success": success}
+        info: dict[str, Any] = {"success": success}
+        if dense is not None:
+            info["dense_reward"] = dense
+        return self._observation(), float(success), False, False, info
 
-    def _simulate(self, action: np.ndarray) -> None:
-        """The package's ``RoboDesk.step`` dynamics, one env step = 50 repeats."""
+    def _simulate(self, action: np.ndarray) -> float | None:
+        """The package's ``RoboDesk.step`` dynamics, one env step = 50 repeats.
+
+        Returns the dense reward summed over the repeats if ``track_dense_reward``, else None.
+        """
+        dense_fn = self._dense_fn if self.track_dense_reward else None
+        dense_total = 0.0
         m, d, ik = self.model, self.data, self._ik
         qpos, ee, target = d.qpos, self._ee_xpos, self._target
         applied, bias, ctrl = self._qfrc_applied, self._qfrc_bias, self._ctrl
@@ -322,7 +371,10 @@ class RoboDeskEnv(Env):
                 applied[:] = bias  # gravity (and Coriolis) compensation of the robot
                 step2(m, d)
                 step1(m, d)
+            if dense_fn is not None:
+                dense_total += dense_fn()
         self._check_warnings()
+        return None if dense_fn is None else dense_total
 
     def _warning_count(self) -> int:
         return int(sum(w.number for w in self.data.warning))
@@ -360,13 +412,63 @@ class RoboDeskEnv(Env):
         def off_table() -> bool:
             if not qpos[z_adr] < OFF_TABLE_BELOW:
                 return False
-            for i in others:
-                moved = self.data.xpos[self._object_bodies[i]] - self._original_pos[i]
-                if not math.sqrt(moved.dot(moved)) < DID_NOT_MOVE_WITHIN:
-                    return False
-            return True
+            return all(self._did_not_move(i) for i in others)
 
         return off_table
+
+    def _make_dense_reward_fn(self, task: str) -> Callable[[], float]:
+        """The ``robodesk`` package's dense reward of the task, on the current state.
+
+        Same terms and weights as the package's task rewards, with its original-position bug
+        fixed (the "stay put" and "pushed" terms compare with the positions at reset).
+        """
+        d, ee = self.data, self._ee_xpos
+
+        def reach(point: np.ndarray) -> float:  # 1 at the point, 0 a metre or more away
+            return min(1.0, max(0.0, 1.0 - float(np.linalg.norm(ee - point))))
+
+        if task.startswith("push_"):
+            pressed = self._make_success_fn(task)
+            button = self._id(mujoco.mjtObj.mjOBJ_BODY, f"{task[5:]}_button")
+            return lambda: 0.25 * pressed() + 0.75 * reach(d.xpos[button])
+        if task == "open_slide":
+            slide = self._qadr("slide_joint")
+            handle = self._id(mujoco.mjtObj.mjOBJ_SITE, "slide_handle")
+            offset = np.array([0.15, 0.0, 0.0])
+            weights = (0.34, 0.33, 0.33)  # ball, upright block, flat block (the package's)
+
+            def slide_reward() -> float:
+                stay = sum(w * self._did_not_move(i) for i, w in enumerate(weights))
+                task_reward = 0.75 * d.qpos[slide] / 0.6 + 0.25 * reach(d.site_xpos[handle] - offset)
+                return 0.9 * task_reward + 0.1 * stay
+
+            return slide_reward
+        if task == "open_drawer":
+            drawer = self._qadr("drawer_joint")
+            handle = self._id(mujoco.mjtObj.mjOBJ_GEOM, "drawer_handle")
+            return lambda: 0.75 * abs(d.qpos[drawer]) / 0.3 + 0.25 * reach(d.geom_xpos[handle])
+        target = OBJECTS.index(task[: -len("_off_table")])
+        others = [i for i in range(len(OBJECTS)) if i != target]
+        body = self._object_bodies[target]
+
+        def off_table_reward() -> float:
+            pushed = 1.0 - d.xpos[body][2] / self._original_pos[target][2]
+            stay = sum(
+                0.1 * (1.0 - float(np.linalg.norm(d.xpos[self._object_bodies[i]] - self._original_pos[i])) / 5.0)
+                for i in others
+            )
+            progress = min(1.0, max(0.0, 0.8 * pushed + stay))
+            return 0.75 * progress + 0.25 * reach(d.xpos[body])
+
+        return off_table_reward
+
+    def _did_not_move(self, i: int) -> bool:
+        moved = self.data.xpos[self._object_bodies[i]] - self._original_pos[i]
+        return math.sqrt(moved.dot(moved)) < DID_NOT_MOVE_WITHIN
+
+    def dense_reward(self) -> float:
+        """The package's dense reward of the task on the current state (one action repeat)."""
+        return float(self._dense_fn())
 
     def is_success(self, goal_state: np.ndarray | None = None) -> bool:
         """The package's success criterion of the task, on the current state.
@@ -383,7 +485,9 @@ class RoboDeskEnv(Env):
     # ---- rendering -------------------------------------------------------------------------
     def render(self, height: int = 64, width: int | None = None) -> np.ndarray:
         if self._renderer is None:
-            self._renderer = Renderer(self.model, RENDER_SPEC)
+            self._renderer = Renderer(
+                self.model, RENDER_SPEC, render_model=load_render_model(RENDER_SPEC.mesh_reduction)
+            )
         return self._renderer.render(self.data, height, width)
 
     def _observation(self) -> np.ndarray | None:

@@ -68,12 +68,18 @@ __all__ = [
 ]
 
 #: The benchmark camera's render specification. The quality knobs were chosen by measurement
-#: (``benchmarks/bench_tabletop.py``, ``docs/tabletop.md``): the arena's only light casts no
-#: shadow, so no shadow pass is drawn (a small shadow map saves GL memory); the floor's 1%
-#: reflectance would re-render the whole scene for no visible effect from this camera;
-#: multisampling costs more than half of the render time on a software rasteriser. Mean
-#: absolute error against ``RENDER_SPEC.full_quality()`` at 64x64: 5.4/255 on average, 7.2/255
-#: at most over 60 varied states (budget 8/255), at about a fifth of the full-quality time.
+#: (``benchmarks/bench_tabletop.py``, ``benchmarks/bench_render_floor.py``, docs/tabletop.md):
+#: the arena's only light casts no shadow, so no shadow pass is drawn (a small shadow map saves
+#: GL memory); the floor's 1% reflectance would re-render the whole scene for no visible
+#: effect from this camera; multisampling costs more than half of the render time on a
+#: software rasteriser. The frame is then geometry-bound (the Panda's and its pedestal's
+#: visual meshes, 168k triangles), so the renderer draws a render-only model with those meshes
+#: decimated by 70% (``mesh_reduction=0.7``; 80% and more visibly facets the base's rings and
+#: costs ~0.5-1.6/255), the floor tessellated into 0.5 m squares and the built-in primitives
+#: more coarsely; the physics model is untouched. Mean absolute error against
+#: ``RENDER_SPEC.full_quality()`` (original meshes) at 64x64: 6.46/255 on average, 7.15/255 at
+#: most over 56 varied states (budget 8/255); 5.0 ms per frame vs 13.1 ms with the original
+#: meshes (2026-11-24, load ~4). See docs/tabletop.md.
 RENDER_SPEC = RenderSpec(
     camera=CAMERA_NAME,
     shadow_size=256,
@@ -81,6 +87,11 @@ RENDER_SPEC = RenderSpec(
     multisamples=0,
     reflection=False,
     skybox=False,
+    mesh_reduction=0.7,
+    plane_spacing=0.5,
+    numslices=16,
+    numstacks=8,
+    numquads=1,
 )
 
 #: Success threshold on the largest object displacement from the goal (metres), SPEC §1.2.
@@ -306,7 +317,11 @@ class TabletopEnv(Env):
     def render(self, height: int = 64, width: int | None = None) -> np.ndarray:
         """Renders the benchmark camera with :data:`RENDER_SPEC`, ``uint8 (height, width, 3)``."""
         if self._renderer is None:
-            self._renderer = Renderer(self._model, RENDER_SPEC)
+            self._renderer = Renderer(
+                self._model,
+                RENDER_SPEC,
+                render_model=self._world.render_model(RENDER_SPEC.mesh_reduction),
+            )
         # After mj_step the kinematics lag the integrated qpos by one physics step; recompute
         # them so that an image is a function of the state alone (re-rendering a saved state
         # gives the same image). The next mj_step1 recomputes them anyway, so the dynamics
