@@ -2,10 +2,19 @@
 
 A :class:`TaskInstance` is an initial simulator state, a goal state and its 64×64 goal image,
 the scripted actions that reach the goal from the initial state, and the environment
-metadata. The goal is a state the task's noise-free scripted policy actually reached from
-that initial state within :data:`MAX_INSTANCE_ACTIONS` (a control trial's 14 free actions on
-the tabletop, the 35-step data horizon on RoboDesk) and that satisfies the task's success
-criterion; instances whose initial state already satisfies it are rejected.
+metadata.
+
+Instances start along scripted trajectories (suite version 2, SPEC §2), as in the original
+release: the task's noise-free scripted policy runs from a randomised reset for at most
+:data:`HORIZON` steps; ``k`` is the first step at which the success criterion holds; a look-back
+``L`` is drawn per instance from :data:`LOOKBACK_RANGE` (it ends at
+:data:`MAX_INSTANCE_ACTIONS` = 12, two actions short of a trial's 14, so instances differ in
+difficulty); the initial state is the state at ``s = max(0, k - L)`` and the goal the state at
+``k`` -- or one settling step later if it still succeeds and the instance stays within 12
+actions. The stored actions are those from ``s`` to the goal, so replaying them reaches success
+in at most 12 actions (tested). An instance whose initial state already satisfies the success
+criterion is rejected. On the tabletop, whose criterion is relative to the goal, ``k`` is judged
+against the policy's push target and the goal is the state actually reached.
 
 Generation is deterministic: attempt ``k`` of a task uses a seed derived from
 ``(suite seed, task, k)``, attempts are accepted in order, and the file is written with fixed
@@ -46,17 +55,13 @@ HORIZON = 35
 NUM_CONTROL_STEPS = 15
 #: Actions a control trial can choose: the first of its steps executes the zero action.
 TRIAL_FREE_ACTIONS = NUM_CONTROL_STEPS - 1
-#: The most scripted actions an instance's goal may take to reach, per environment. SPEC §2
-#: asks that a goal be reachable "within the horizon"; on the tabletop, whose success is
-#: relative to the goal state, instances are accepted only if the noise-free scripted policy
-#: reaches the goal within a trial's free actions (with the shorter push of
-#: ``vp2.data.policies.tabletop.INSTANCE_PUSH_DISTANCE``). RoboDesk's success is the task's own
-#: criterion, and with our scripted policies -- their arm commands at the action limit most of
-#: the time -- no open_slide and 2 of 30 open_drawer instances would pass such a limit, so
-#: RoboDesk keeps the data horizon; docs/benchmark.md lists per task how many of its instances
-#: a trial's 14 actions can reach.
-MAX_INSTANCE_ACTIONS = {"tabletop": TRIAL_FREE_ACTIONS, "robodesk": HORIZON}
-SUITE_FORMAT = "vp2-task-suite/1"
+#: The most scripted actions an instance's goal may take to reach from its initial state
+#: (SPEC §2: two actions of slack below a trial's 14).
+MAX_INSTANCE_ACTIONS = TRIAL_FREE_ACTIONS - 2
+#: The look-back ``L`` (scripted actions between the initial state and the first success) is
+#: drawn uniformly from this inclusive range per instance.
+LOOKBACK_RANGE = (4, MAX_INSTANCE_ACTIONS)
+SUITE_FORMAT = "vp2-task-suite/2"
 SHIPPED_SUITE = "task_suite.npz"
 
 
@@ -72,6 +77,8 @@ class TaskInstance:
     goal_image: np.ndarray  # (64, 64, 3) uint8
     actions: np.ndarray  # (k, A) float64: scripted actions from init_state to goal_state
     env_meta: dict[str, Any]
+    #: Step of the scripted trajectory the initial state was taken at (``s`` in SPEC §2).
+    start_step: int = 0
 
     @property
     def key(self) -> str:
@@ -146,6 +153,7 @@ class TaskSuite:
                 "indices": [i.index for i in insts],
                 "seeds": [i.seed for i in insts],
                 "num_actions": [len(i.actions) for i in insts],
+                "start_steps": [i.start_step for i in insts],
                 "env_meta": [i.env_meta for i in insts],
             }
         with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
@@ -190,6 +198,7 @@ class TaskSuite:
                                 goal_image=images[j],
                                 actions=actions[j, : tm["num_actions"][j]],
                                 env_meta=tm["env_meta"][j],
+                                start_step=tm["start_steps"][j],
                             )
                         )
         except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
@@ -222,44 +231,49 @@ def _env(task: str) -> Env:
 def generate_instance(task: str, seed: int, index: int = -1) -> TaskInstance | None:
     """Tries to make one instance from ``seed``; ``None`` if it is rejected.
 
-    Rejected when the initial state already succeeds, or when the noise-free scripted
-    policy does not reach success within the environment's :data:`MAX_INSTANCE_ACTIONS`.
+    Runs the noise-free scripted policy from a randomised reset (module docstring) and takes
+    the initial state ``L`` actions before its first success. Rejected when the policy does not
+    succeed within :data:`HORIZON` steps, or when the initial state already succeeds.
     """
     from vp2.data.policies import make_task_policy
 
-    limit = MAX_INSTANCE_ACTIONS[split_name(task)[0]]
     env = _env(task)
-    reset_seed, policy_seed = np.random.SeedSequence(seed).generate_state(2)
+    reset_seed, policy_seed, lookback_seed = np.random.SeedSequence(seed).generate_state(3)
+    lookback = int(np.random.default_rng(lookback_seed).integers(LOOKBACK_RANGE[0], LOOKBACK_RANGE[1] + 1))
     env.reset(seed=int(reset_seed))
-    init_state = env.get_state()
     policy = make_task_policy(env, np.random.default_rng(policy_seed))
     policy.reset()
     target = policy.goal_state()
     if env.is_success(target):
         return None
-    actions = []
-    for _ in range(limit):
+    states, actions = [env.get_state()], []
+    for _ in range(HORIZON):
         action = env.check_action(policy.act())
         env.step(action)
         actions.append(action)
+        states.append(env.get_state())
         if env.is_success(target):
             break
     else:
         return None
+    success_step = len(actions)
+    start = max(0, success_step - lookback)
     # One more scripted step lets a falling block land or a pushed object settle; it is
-    # kept only if the state still succeeds.
-    if len(actions) < limit:
-        before = env.get_state()
+    # kept only if the state still succeeds and the instance stays within the action limit.
+    if success_step - start < MAX_INSTANCE_ACTIONS:
         action = env.check_action(policy.act())
         env.step(action)
         if env.is_success(target):
             actions.append(action)
+            states.append(env.get_state())
         else:
-            env.reset_to(before)
-    goal_state = env.get_state()
+            env.reset_to(states[-1])
+    goal_state = states[-1]
     goal_image = env.render(GOAL_IMAGE_SIZE)
+    init_state = states[start]
     env.reset_to(init_state)
-    env_meta = env.serialize()
+    if env.is_success(goal_state):  # e.g. a tabletop object already within 5 cm of its goal
+        return None
     return TaskInstance(
         task=task,
         index=index,
@@ -267,8 +281,9 @@ def generate_instance(task: str, seed: int, index: int = -1) -> TaskInstance | N
         init_state=init_state,
         goal_state=goal_state,
         goal_image=goal_image,
-        actions=np.asarray(actions, np.float64),
-        env_meta=env_meta,
+        actions=np.asarray(actions[start:], np.float64),
+        env_meta=env.serialize(),
+        start_step=start,
     )
 
 

@@ -18,14 +18,14 @@ def suite_contact_sheet(
     if not instances:
         raise ValueError(f"the suite has no instances of {task}; tasks: {', '.join(suite.tasks)}")
     images, labels = [], []
-    env = instances[0].make_env(observation_size=None)
-    try:
-        for inst in instances:
-            env.reset_to(inst.init_state)
+    for inst in instances:
+        # Each instance's own env: tabletop instances differ in their objects' textures.
+        env = inst.make_env(observation_size=None)
+        try:
             images += [env.render(64), inst.goal_image]
-            labels += [f"#{inst.index} start", f"#{inst.index} goal"]
-    finally:
-        env.close()
+        finally:
+            env.close()
+        labels += [f"#{inst.index} start ({len(inst.actions)} act.)", f"#{inst.index} goal"]
     out = Path(out) if out else Path("outputs/tasks") / f"{task.replace('/', '_')}.png"
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(contact_sheet(images, labels, columns=6, scale=2)).save(out)

@@ -9,8 +9,8 @@ A *data stream* is what one scripted policy collects:
   one scene, so one stream serves all four.
 
 For the task suite, :func:`make_task_policy` gives the noise-free policy that solves one
-registered task category (tabletop: pushes that category's object the shorter
-``INSTANCE_PUSH_DISTANCE``, so that a control trial can reach the goal).
+registered task category (tabletop: pushes that category's object; the suite starts its
+instances at most 12 actions before the push succeeds, see :mod:`vp2.data.suite`).
 """
 
 from __future__ import annotations
@@ -61,11 +61,9 @@ def make_task_policy(env: Env, rng: np.random.Generator) -> ScriptedPolicy:
         from vp2.data.policies.robodesk import make_robodesk_policy
 
         return make_robodesk_policy(env, rng)
-    from vp2.data.policies.tabletop import INSTANCE_PUSH_DISTANCE, make_tabletop_policy
+    from vp2.data.policies.tabletop import make_tabletop_policy
 
-    return make_tabletop_policy(
-        env, rng, target_object=task.removeprefix("push_"), push_distance=INSTANCE_PUSH_DISTANCE
-    )
+    return make_tabletop_policy(env, rng, target_object=task.removeprefix("push_"))
 
 
 def make_policy(

@@ -3,8 +3,8 @@
 Each episode the policy picks an object (at random, or the one it is given: the task suite
 pushes the task's own object), a direction ``theta`` uniform in ``[0, pi]`` -- the push moves the
 object by ``push_distance * (cos theta, sin theta)`` in the table plane (world x points away from
-the robot, y to its left) -- and a target that far away in that direction (0.3 m for
-training data, SPEC §3; the task suite pushes :data:`INSTANCE_PUSH_DISTANCE`). Directions are redrawn
+the robot, y to its left) -- and a target that far away in that direction (0.3 m, SPEC §3, for
+training data and the task suite alike). Directions are redrawn
 until the target lies in :data:`TARGET_REGION` (on the table, within the arm's reach) and, with
 ``clear_path`` (the default), until neither the pushed object nor the fingers sweep through
 another object on the way (such a push cannot reach the goal, which keeps the other objects in
@@ -49,7 +49,6 @@ from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
 
 __all__ = [
     "DONE_TOLERANCE",
-    "INSTANCE_PUSH_DISTANCE",
     "PUSH_DISTANCE",
     "TARGET_REGION",
     "TabletopPushPolicy",
@@ -58,11 +57,6 @@ __all__ = [
 
 #: Distance the pushed object should travel (metres), SPEC §3.
 PUSH_DISTANCE = 0.3
-#: Distance the task suite's instances push their object (metres): short enough that the
-#: noise-free policy reaches the goal within a control trial's 14 free actions (SPEC §4: 15
-#: steps, the first executes the zero action) in most initial states -- a 0.3 m push takes 14-32
-#: steps (median 22) -- and three times the 5 cm success threshold. See ``docs/tabletop.md``.
-INSTANCE_PUSH_DISTANCE = 0.15
 #: Where targets may lie (world x range, y range; metres): on the table (whose top spans
 #: x in [-0.37, 0.21], y in [-0.32, 0.32]) with every object's centre at least 6 cm from its
 #: edges, and not so far from the robot (x > 0.15) that the arm pushes poorly there.
