@@ -64,8 +64,9 @@ def _cmd_collect(args: argparse.Namespace) -> int:
         image_size=args.image_size,
         seed=args.seed,
         chunk_size=args.chunk_size,
+        render=not args.states_only,
     )
-    out = args.out or f"data/{args.env}-{n}x-{args.image_size}px"
+    out = args.out or f"data/{args.env}-{n}x-" + ("states" if args.states_only else f"{args.image_size}px")
     with _executor(args) as executor:
         root = collect(config, out, workers=args.workers, executor=executor)
     print(f"dataset: {root} ({config.total} trajectories)")
@@ -235,6 +236,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--image-size", type=int, default=64)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--chunk-size", type=int, default=10, help="trajectories per shard")
+    p.add_argument("--states-only", action="store_true",
+                   help="store states, actions and labels but no images (physics only; add "
+                        "the images later with `vp2 render DATASET --size 64`)")
     p.add_argument("--workers", type=int, default=None,
                    help="worker processes (default: cores; Ray: as many actors as fit)")
     _add_executor_flags(p)

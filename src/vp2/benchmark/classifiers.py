@@ -46,8 +46,9 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from vp2.benchmark.agent import CLASSIFIERS, ClassifierRegistry
-from vp2.data.storage import DatasetError, dataset_index, load_manifest
+from vp2.data.storage import DatasetError, dataset_index, load_manifest, require_images
 from vp2.envs import ROBODESK_TASKS, split_name
+from vp2.envs.robodesk import DENSE_LABEL_THRESHOLD
 from vp2.utils.io import atomic_path, write_json_atomic
 
 log = logging.getLogger(__name__)
@@ -55,6 +56,9 @@ log = logging.getLogger(__name__)
 #: Where the shipped classifiers live: ``<task>.pt`` (``task`` like ``push_red``) and
 #: ``metrics.json``.
 ASSETS_DIR = Path(__file__).resolve().parents[1] / "assets" / "classifiers"
+#: Environment variable naming another directory of classifier files to plan with instead of
+#: the shipped ones (e.g. to compare classifier variants with the oracle).
+CLASSIFIERS_ENV_VAR = "VP2_CLASSIFIERS_DIR"
 METRICS_FILE = "metrics.json"
 #: Side of the frames the classifiers are trained on (the benchmark's 64×64).
 IMAGE_SIZE = 64
@@ -261,11 +265,22 @@ class FrameSet:
         }
 
 
-def load_frames(root: str | Path, task: str, split: str) -> FrameSet:
+#: Frame labels a classifier can be trained on (SPEC §6): the simulator's strict success flag,
+#: or the paper's label, the dense reward summed over the step's 50 action repeats >= 30.
+LABELS = {
+    "success": "simulator success flag of each frame (success[k] of obs/rgb[k])",
+    "dense": "paper: dense reward summed over the step's 50 action repeats >= 30 "
+    "(dense_reward[k] of obs/rgb[k])",
+}
+
+
+def load_frames(root: str | Path, task: str, split: str, label: str = "success") -> FrameSet:
     """Every frame of every ``task`` trajectory of one split of a collected dataset.
 
-    Frame ``k`` of a trajectory is ``obs/rgb[k]``, rendered from ``states[k]``, and its label is
-    ``success[k]``, the simulator's success flag of that state (``k = 0`` is the reset frame).
+    Frame ``k`` of a trajectory is ``obs/rgb[k]``, rendered from ``states[k]``. With
+    ``label="success"`` its label is ``success[k]``, the simulator's success flag of that state
+    (``k = 0`` is the reset frame); with ``label="dense"`` the paper's: ``dense_reward[k] >=
+    30`` (:data:`vp2.envs.robodesk.DENSE_LABEL_THRESHOLD`).
     The split is the dataset's own ``mask/train`` / ``mask/valid`` (by trajectory), so no
     trajectory contributes frames to both.
 
@@ -279,10 +294,13 @@ def load_frames(root: str | Path, task: str, split: str) -> FrameSet:
     """
     if split not in ("train", "valid"):
         raise ValueError(f"split must be 'train' or 'valid', got {split!r}")
+    if label not in LABELS:
+        raise ValueError(f"label must be one of {', '.join(LABELS)}, got {label!r}")
     full = f"robodesk/{short_task(task)}"
     records = [r for r in dataset_index(root) if r.task == full and r.split == split]
     if not records:
         raise DatasetError(f"{root}: no {split} trajectories of {full}")
+    require_images(root, records)
     images, labels, trajectories, steps = [], [], [], []
     by_file: dict[Path, list[str]] = {}
     for r in records:
@@ -292,7 +310,16 @@ def load_frames(root: str | Path, task: str, split: str) -> FrameSet:
             for name in names:
                 g = f["data"][name]
                 rgb = g["obs/rgb"][()]  # (T + 1, H, W, 3)
-                success = g["success"][()].astype(bool)  # (T + 1,)
+                if label == "dense":
+                    if "dense_reward" not in g:
+                        raise DatasetError(
+                            f"{path}:{name}: no dense_reward (collected before it was "
+                            "recorded); re-collect with `vp2 collect robodesk`, or use "
+                            "--label success"
+                        )
+                    success = g["dense_reward"][()] >= DENSE_LABEL_THRESHOLD
+                else:
+                    success = g["success"][()].astype(bool)  # (T + 1,)
                 if len(rgb) != len(success):
                     raise DatasetError(
                         f"{path}:{name}: {len(rgb)} frames but {len(success)} success flags"
@@ -335,6 +362,7 @@ class TrainConfig:
             loss (as the paper), ``"balanced"`` for ``negatives / positives`` of the train set.
         seed: Seeds the initialisation, the batches and the augmentation.
         device: Training device.
+        label: Frame label, a key of :data:`LABELS`.
     """
 
     arch: str = "ours"
@@ -346,6 +374,7 @@ class TrainConfig:
     pos_weight: float | str | None = None
     seed: int = 0
     device: str = "cpu"
+    label: str = "success"
 
     def resolved_pos_weight(self, train: FrameSet) -> float | None:
         if self.pos_weight is None:
@@ -527,9 +556,10 @@ def shipped_path(task: str, directory: str | Path = ASSETS_DIR) -> Path:
 
 
 def register_shipped_classifiers(
-    registry: ClassifierRegistry = CLASSIFIERS, directory: str | Path = ASSETS_DIR
+    registry: ClassifierRegistry = CLASSIFIERS, directory: str | Path | None = None
 ) -> list[str]:
-    """Registers a loader for every task whose classifier file exists in ``directory``.
+    """Registers a loader for every task whose classifier file exists in ``directory``
+    (default: ``$VP2_CLASSIFIERS_DIR`` if set, else the shipped ones).
 
     Cheap (files are only checked for existence; a classifier is loaded on first use by the
     registry). Called by :mod:`vp2.benchmark` on import for the shipped classifiers.
@@ -537,6 +567,13 @@ def register_shipped_classifiers(
     Returns:
         The registered task names.
     """
+    if directory is None:
+        directory = os.environ.get(CLASSIFIERS_ENV_VAR) or ASSETS_DIR
+        if not Path(directory).is_dir():
+            raise FileNotFoundError(
+                f"${CLASSIFIERS_ENV_VAR} = {directory} is not a directory of classifier files "
+                "(vp2 train-classifier --out DIR writes one); unset it to use the shipped ones"
+            )
     registered = []
     for task in CLASSIFIER_TASKS:
         path = shipped_path(task, directory)
@@ -580,8 +617,8 @@ def train_task(
         The network and its metadata (arch, task, image size, held-out metrics, data
         description, training settings and time, command).
     """
-    train = load_frames(root, task, "train")
-    valid = load_frames(root, task, "valid")
+    train = load_frames(root, task, "train", config.label)
+    valid = load_frames(root, task, "valid", config.label)
     manifest = load_manifest(root)
     full = f"robodesk/{short_task(task)}"
     log.info(
@@ -611,7 +648,7 @@ def train_task(
         "data": {
             "dataset": str(root),
             "collection": manifest.get("config", {}),
-            "label": "simulator success flag of each frame (success[k] of obs/rgb[k])",
+            "label": LABELS[config.label],
             "split": "the dataset's mask/train and mask/valid (by trajectory)",
             "train": train.describe(),
             "valid": valid.describe(),
@@ -662,6 +699,13 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         default=None,
         help="positive-class loss weight: a number or 'balanced' (default: none)",
     )
+    p.add_argument(
+        "--label",
+        choices=sorted(LABELS),
+        default="success",
+        help="frame label: success (the simulator's success flag) or dense (the paper's: "
+        "dense reward summed over the step's 50 repeats >= 30)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
@@ -690,6 +734,8 @@ def _command_line(args: argparse.Namespace) -> str:
     if args.paper_steps is not None:
         parts.append(f"--paper-steps {args.paper_steps}")
     parts += [f"--batch-size {args.batch_size}", f"--shift {args.shift}", f"--seed {args.seed}"]
+    if args.label != "success":
+        parts.append(f"--label {args.label}")
     if args.pos_weight is not None:
         parts.append(f"--pos-weight {args.pos_weight}")
     if args.threads is not None:
@@ -729,6 +775,7 @@ def run_from_args(args: argparse.Namespace) -> int:
                 pos_weight=pos_weight,
                 seed=args.seed,
                 device=args.device,
+                label=args.label,
             )
             model, meta = train_task(args.data, task, config, command)
             directory = ASSETS_DIR if args.ship and arch == "ours" else run_dir

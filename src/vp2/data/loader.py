@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from vp2.data.storage import DatasetError, DemoRecord, dataset_index
+from vp2.data.storage import DatasetError, DemoRecord, dataset_index, require_images
 
 
 class ClipDataset(Dataset):
@@ -57,6 +57,7 @@ class ClipDataset(Dataset):
         if context < 1 or future < 1 or stride < 1:
             raise ValueError("context, future and stride must be >= 1")
         records = dataset_index(root)
+        require_images(root, records)
         if max_trajectories is not None:
             if max_trajectories <= 0:
                 raise ValueError(f"max_trajectories must be > 0, got {max_trajectories}")

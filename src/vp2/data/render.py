@@ -61,7 +61,7 @@ def rerender(
     storage.dataset_index(src)  # the source must be complete and valid
     new_manifest: dict[str, Any] = {
         **manifest,
-        "config": {**manifest["config"], "image_size": size},
+        "config": {**manifest["config"], "image_size": size, "render": True},
         "rendered_from": str(src.resolve()),
         "complete": False,
     }

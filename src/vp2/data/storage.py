@@ -14,7 +14,11 @@ Each shard follows robomimic's layout::
         actions   (T, A)        float32, T = 35
         states    (T+1, S)      float64  (re-render any resolution from these)
         success   (T+1,)        bool     success flag of each state
-        obs/rgb   (T+1, H, W, 3) uint8
+        dense_reward (T+1,)     float64  RoboDesk: the package's dense reward summed over the
+                                         50 repeats that led to each state (50x the reset
+                                         state's for state 0); absent on the tabletop
+        obs/rgb   (T+1, H, W, 3) uint8   absent in a states-only collection (`vp2 collect
+                                         --states-only`) until `vp2 render` adds it
     mask/train, mask/valid      demo names (bytes)
     attrs: vp2_format, complete
 
@@ -55,10 +59,11 @@ class Trajectory:
     seed: int
     actions: np.ndarray  # (T, A) float32
     states: np.ndarray  # (T+1, S) float64
-    images: np.ndarray  # (T+1, H, W, 3) uint8
+    images: np.ndarray | None  # (T+1, H, W, 3) uint8; None: states only (render later)
     success: np.ndarray  # (T+1,) bool
     env_meta: dict[str, Any]
     noise_sigma: float = 0.0
+    dense_reward: np.ndarray | None = None  # (T+1,) float64, RoboDesk only
 
     @property
     def name(self) -> str:
@@ -96,7 +101,10 @@ def write_shard(
             g.create_dataset("actions", data=np.asarray(traj.actions, np.float32))
             g.create_dataset("states", data=np.asarray(traj.states, np.float64))
             g.create_dataset("success", data=np.asarray(traj.success, bool))
-            g.create_dataset("obs/rgb", data=np.asarray(traj.images, np.uint8))
+            if traj.dense_reward is not None:
+                g.create_dataset("dense_reward", data=np.asarray(traj.dense_reward, np.float64))
+            if traj.images is not None:
+                g.create_dataset("obs/rgb", data=np.asarray(traj.images, np.uint8))
             (valid if is_valid_index(traj.index, valid_every) else train).append(traj.name)
         f.create_dataset("mask/train", data=np.array(train, dtype="S"), shape=(len(train),))
         f.create_dataset("mask/valid", data=np.array(valid, dtype="S"), shape=(len(valid),))
@@ -113,7 +121,7 @@ class DemoRecord:
     task: str
     split: str  # "train" or "valid"
     num_frames: int
-    image_shape: tuple[int, int, int]
+    image_shape: tuple[int, ...]  # () in a states-only collection
     action_dim: int
 
 
@@ -135,15 +143,15 @@ def read_shard_index(path: str | Path) -> list[DemoRecord]:
             split.update({n.decode(): "valid" for n in f["mask/valid"][()]})
             records = []
             for name, g in f["data"].items():
-                rgb = g["obs/rgb"]
+                rgb = g.get("obs/rgb")
                 records.append(
                     DemoRecord(
                         path=path,
                         name=name,
                         task=str(g.attrs["task"]),
                         split=split[name],
-                        num_frames=int(rgb.shape[0]),
-                        image_shape=tuple(int(s) for s in rgb.shape[1:]),
+                        num_frames=int(g["states"].shape[0]),
+                        image_shape=() if rgb is None else tuple(int(s) for s in rgb.shape[1:]),
                         action_dim=int(g["actions"].shape[1]),
                     )
                 )
@@ -168,10 +176,11 @@ def read_trajectories(path: str | Path) -> Iterator[Trajectory]:
                 seed=int(g.attrs["seed"]),
                 actions=g["actions"][()],
                 states=g["states"][()],
-                images=g["obs/rgb"][()],
+                images=g["obs/rgb"][()] if "obs/rgb" in g else None,
                 success=g["success"][()],
                 env_meta=json.loads(g.attrs["env_meta"]),
                 noise_sigma=float(g.attrs["noise_sigma"]),
+                dense_reward=g["dense_reward"][()] if "dense_reward" in g else None,
             )
 
 
@@ -214,3 +223,12 @@ def dataset_index(root: str | Path, require_complete: bool = True) -> list[DemoR
         records.extend(read_shard_index(path))
     records.sort(key=lambda r: int(r.name.split("_")[1]))
     return records
+
+
+def require_images(root: str | Path, records: Sequence[DemoRecord]) -> None:
+    """Raises a clear error if a dataset was collected without images."""
+    if any(not r.image_shape for r in records):
+        raise DatasetError(
+            f"{root}: a states-only collection has no images yet; render them with "
+            f"`vp2 render {root} --size 64`"
+        )
