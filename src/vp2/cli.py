@@ -174,7 +174,8 @@ def _add_run_parser(sub: argparse._SubParsersAction) -> None:
         description="Evaluate a video prediction model by planning with it on the task suite. "
                     "One flag per vp2.benchmark.RunConfig field (docs/benchmark.md).")
     p.add_argument("--model", help="model spec: simulator | repeat_last_frame | NAME:CHECKPOINT "
-                   "| package.module:factory | file.yaml (with _target_)")
+                   "| package.module:factory | file.yaml (with _target_); modules are also "
+                   "looked up in the current directory (docs/benchmark.md, 'Plugins')")
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--model-arg", action="append", default=[], metavar="KEY=VALUE",
                    help="model factory argument, repeatable; VALUE parsed as YAML (for a "
@@ -200,7 +201,8 @@ def _add_run_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-gifs", action="store_true", help="no per-trial GIFs")
     p.add_argument("--save-predictions", action="store_true",
                    help="also a GIF of the chosen plans' predictions")
-    p.add_argument("--oracle", help="oracle run directory to normalise scores by")
+    p.add_argument("--oracle", help="simulator-oracle run directory to normalise scores by "
+                   "(default: the shipped oracle, vp2/assets/oracle.json or $VP2_ORACLE_ASSET)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(fn=_cmd_run)
 
@@ -272,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_run_parser(sub)
 
-    from vp2.benchmark import classifiers, report, study
+    from vp2.benchmark import classifiers, report, shipped_oracle, study
     from vp2.metrics import evaluate as metrics_command
     from vp2.training import command as train_command
 
@@ -296,6 +298,12 @@ def build_parser() -> argparse.ArgumentParser:
         "self-contained HTML report of one or more runs",
         "Writes one self-contained HTML page: success per task and model, normalised scores, "
         "the study when metrics exist, trial videos (docs/report.md).")
+    _add_module_command(
+        sub, "ship-oracle", shipped_oracle,
+        "build the shipped oracle (the default normaliser) from simulator-oracle runs",
+        "Reads finished simulator-oracle run directories and writes the per-task success "
+        "rates that vp2 run, main and report normalise scores by when no --oracle is given "
+        "(docs/benchmark.md, 'The shipped oracle').")
     _add_module_command(
         sub, "study", study,
         "perceptual metrics versus control success",
@@ -323,6 +331,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileExistsError, FileNotFoundError, DatasetError) as exc:
         print(f"vp2 {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except RuntimeError as exc:
+        from vp2.benchmark.runner import ModelFailure
+
+        if not isinstance(exc, ModelFailure):
+            raise
+        print(f"vp2 {args.command}: error: {exc}", file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":

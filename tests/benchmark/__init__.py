@@ -186,3 +186,17 @@ def repeat_factory(action_dim: int, image_size: int = 64) -> Any:
     from vp2.models.reference import RepeatLastFrame
 
     return RepeatLastFrame(action_dim=action_dim, image_size=image_size)
+
+
+class NaNUntilFixed(_Base):
+    """Predicts NaN frames until the file ``fixed`` exists (a model broken, then fixed)."""
+
+    name = "nan_until_fixed"
+
+    def __init__(self, action_dim: int, fixed: str) -> None:
+        super().__init__(action_dim)
+        self.fixed = fixed
+
+    def predict(self, context_frames, actions, *, generator=None, grad=None):
+        out = self._good(context_frames)
+        return out if os.path.exists(self.fixed) else out * float("nan")

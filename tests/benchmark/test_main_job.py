@@ -17,7 +17,8 @@ def _config(tmp_path: Path, **overrides) -> MainJobConfig:
     return MainJobConfig(**kwargs)
 
 
-def test_main_job_runs_each_agent_and_writes_the_table(tmp_path):
+def test_main_job_runs_each_agent_and_writes_the_table(tmp_path, monkeypatch):
+    monkeypatch.setenv("VP2_ORACLE_ASSET", str(tmp_path / "absent.json"))  # no shipped oracle
     table, path = run_main_job(_config(tmp_path), gallery=False)
     rows = [line for line in table.splitlines() if line.startswith("| tabletop/")]
     assert rows == [line for line in rows if line.count("|") == 4]

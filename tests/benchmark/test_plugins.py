@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import pytest
 import torch
 
@@ -14,6 +16,7 @@ from vp2.benchmark.plugins import (
     load_plugin,
     model_identity,
 )
+from vp2.models.base import CheckedModel, unwrap
 from vp2.models.reference import RepeatLastFrame, SimulatorModel
 
 
@@ -35,7 +38,11 @@ def test_module_factory_with_args_and_context():
 def test_builtin_names():
     assert isinstance(load_plugin("repeat_last_frame", context={"action_dim": 5}), RepeatLastFrame)
     oracle = build_model("oracle", {"num_workers": 1}, env="robodesk", action_dim=5, device="cpu")
-    assert isinstance(oracle, SimulatorModel) and oracle.action_dim == 5
+    # The resolver returns the model checked (one wrapping point), attributes passed through.
+    assert isinstance(oracle, CheckedModel) and isinstance(unwrap(oracle), SimulatorModel)
+    assert oracle.action_dim == 5 and oracle.name == "simulator"
+    oracle.num_workers = 1  # written through (the runner sets it in trial processes)
+    assert unwrap(oracle).num_workers == 1
     assert describe_spec("simulator") == "builtin"
     assert describe_spec("svg_prime:runs/x") == "checkpoint"
     assert describe_spec("m.yaml") == "yaml" and describe_spec("pkg.mod:f") == "factory"
@@ -45,7 +52,8 @@ def test_yaml_target_with_nested_targets_and_overrides(tmp_path):
     path = tmp_path / "model.yaml"
     path.write_text("_target_: tests.benchmark:repeat_factory\nimage_size: 48\n")
     model = build_model(str(path), {}, env="tabletop", action_dim=4, device="cpu")
-    assert isinstance(model, RepeatLastFrame) and (model.action_dim, model.image_size) == (4, 48)
+    assert isinstance(unwrap(model), RepeatLastFrame)
+    assert (model.action_dim, model.image_size) == (4, 48)
     model = build_model(str(path), {"image_size": 16}, env="tabletop", action_dim=4, device="cpu")
     assert model.image_size == 16  # run arguments override the file
     # Nested targets are built first; the dotted target form works as well.
@@ -63,10 +71,32 @@ def test_yaml_target_with_nested_targets_and_overrides(tmp_path):
 def test_torch_modules_are_moved_and_put_in_eval_mode(tmp_path):
     path = tmp_path / "lin.yaml"
     path.write_text("_target_: torch.nn:Linear\nin_features: 2\nout_features: 3\n")
-    module = build_model(str(path), {}, env="tabletop", action_dim=4, device="cpu")
+    module = build_model(str(path), {}, env="tabletop", action_dim=4, device="cpu", check=False)
     assert isinstance(module, torch.nn.Linear) and not module.training
     identity = model_identity(str(path), {}, module)
     assert identity["class"] == "torch.nn.modules.linear.Linear" and identity["num_parameters"] == 9
+    # Checked (the default), an object without the interface's attributes is refused.
+    with pytest.raises(TypeError, match="Linear does not implement VideoPredictionModel"):
+        build_model(str(path), {}, env="tabletop", action_dim=4, device="cpu")
+
+
+def test_a_module_in_the_current_directory_resolves(tmp_path, monkeypatch):
+    (tmp_path / "vp2_cwd_plugin.py").write_text(
+        "from vp2.models.reference import RepeatLastFrame\n"
+        "class Plain(RepeatLastFrame):\n"
+        "    name = None\n"
+        "def make(action_dim):\n"
+        "    return Plain(action_dim)\n"
+    )
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p not in ("", str(tmp_path))])
+    monkeypatch.delitem(sys.modules, "vp2_cwd_plugin", raising=False)
+    check_spec("vp2_cwd_plugin:make")
+    model = build_model("vp2_cwd_plugin:make", {}, env="tabletop", action_dim=4, device="cpu")
+    assert model.name == "Plain" and sys.path[-1] == str(tmp_path)  # appended, not first
+    identity = model_identity("vp2_cwd_plugin:make", {}, model)
+    assert identity["name"] == "Plain" and identity["class"] == "vp2_cwd_plugin.Plain"
+    sys.modules.pop("vp2_cwd_plugin", None)
 
 
 @pytest.mark.parametrize(

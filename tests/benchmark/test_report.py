@@ -92,7 +92,8 @@ def test_report_is_self_contained(tmp_path):
     assert first[:6] == b"GIF89a" and first in gifs
 
 
-def test_oracle_normalised_score(tmp_path):
+def test_oracle_normalised_score(tmp_path, monkeypatch):
+    monkeypatch.setenv("VP2_ORACLE_ASSET", str(tmp_path / "absent.json"))  # no shipped oracle
     html = _report(tmp_path)
     # Ratio of means: 0.5 / (2/3) and 1.0 / (2/3).
     assert '<span class="score">0.750</span> [0.750, 0.750]' in html
@@ -107,7 +108,7 @@ def test_oracle_normalised_score(tmp_path):
     html = write_report([run], tmp_path / "single.html").read_text()
     assert '<span class="score">0.750</span>' in html
     html = write_report([small_runs()["repeat"]], tmp_path / "none.html").read_text()
-    assert "not available (no oracle run given)" in html
+    assert "not available (no oracle)" in html and html.count("no shipped oracle") == 1
 
 
 def test_gallery_shows_successes_first_and_respects_its_caps(tmp_path):

@@ -18,7 +18,13 @@ import pytest
 
 from tests.benchmark import tiny_suite_path
 from vp2.benchmark.results import read_trials, trial_key
-from vp2.benchmark.runner import RunConfig, parse_model_args, read_config, run_benchmark
+from vp2.benchmark.runner import (
+    ModelFailure,
+    RunConfig,
+    parse_model_args,
+    read_config,
+    run_benchmark,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 STEPS = 3
@@ -182,10 +188,11 @@ def test_a_failing_model_is_recorded_as_an_error_and_finished_trials_survive(
     assert len(by_key) == 2 and result.num_errors == 1
     for (_, index, _), r in by_key.items():
         if index == 1:
-            assert r["success"] is None and r["error"]["type"] == "ValueError"
+            assert r["success"] is None and r["error"]["type"] == "ModelContractError"  # a ValueError
             assert r["error"]["where"] == "trial"
             assert "Traceback" in r["error"]["traceback"]
             assert re.search(match, r["error"]["message"])
+            assert r["error"]["model_failure"]["field"] == "predict output"
             assert r["attempts"] == 2 and len(r["previous_errors"]) == 1
         else:
             assert r["error"] is None and r["success"] is True
@@ -219,6 +226,54 @@ def test_a_model_that_cannot_be_built_stops_the_run(tmp_path):
     assert read_trials(cfg.out) == []
     with pytest.raises(ValueError, match="cannot import module"):
         run_benchmark(_config(tmp_path, "missing", model="no_such_pkg.models:build"))
+
+
+def test_a_model_that_does_not_fit_the_run_is_refused_before_any_trial(tmp_path):
+    wrong_dim = _config(
+        tmp_path, "dim", model="tests.benchmark:repeat_factory", model_args={"action_dim": 5}
+    )
+    with pytest.raises(ModelFailure, match=r"action_dim 5, but the tabletop tasks have 4-D"):
+        run_benchmark(wrong_dim)
+    no_grad = _config(tmp_path, "grad", optimizer="lbfgs")
+    with pytest.raises(ModelFailure, match="lbfgs optimizer needs gradients .* repeat_last_frame"):
+        run_benchmark(no_grad)
+    assert read_trials(wrong_dim.out) == [] and read_trials(no_grad.out) == []
+
+
+def test_a_broken_model_stops_the_run_and_resume_continues_after_the_fix(tmp_path):
+    fixed = tmp_path / "fixed"
+    fixed.touch()
+    cfg = _config(
+        tmp_path, "run", model="tests.benchmark:NaNUntilFixed",
+        model_args={"fixed": str(fixed)}, seeds=(0,), num_instances=1,
+    )
+    assert run_benchmark(cfg).num_errors == 0  # one finished trial
+    fixed.unlink()  # the model breaks: the new seed's trial fails, and its retry
+    more = replace(cfg, seeds=(0, 1), resume=True)
+    with pytest.raises(ModelFailure) as info:
+        run_benchmark(more)
+    message = str(info.value)
+    assert "nan_until_fixed" in message and "predict output: expected finite values" in message
+    assert 'docs/benchmark.md, "Plugins"' in message and "--resume" in message
+    assert [trial_key(r) for r in read_trials(cfg.out)] == [("tabletop/push_sphere", 0, 0)]
+    fixed.touch()
+    result = run_benchmark(more)
+    assert result.num_run == 1 and result.num_skipped == 1 and result.num_errors == 0
+
+
+def test_vp2_run_exits_at_once_on_a_model_returning_nan(tmp_path):
+    out = tmp_path / "nan"
+    proc = subprocess.run(
+        [sys.executable, "-m", "vp2.cli", "run", "--model", "tests.benchmark:NaNModel",
+         "--suite", str(tiny_suite_path()), "--seeds", "0", "1", "--num-steps", str(STEPS),
+         "--num-samples", "8", "--no-progress", "--out", str(out)],
+        cwd=REPO, capture_output=True, text=True, timeout=600,
+    )
+    assert proc.returncode == 3, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("vp2 run: error: stopped: model nan_model")
+    assert "output: expected finite values" in last and "first 2 trial attempts" in last
+    assert read_trials(out) == []
 
 
 def test_finished_at_is_stamped_when_the_trial_ends(tmp_path):

@@ -10,13 +10,16 @@ import pytest
 import torch
 
 from vp2.models import (
+    DEFAULT_MAX_BATCH_SIZE,
     CheckedModel,
     FitVidConfig,
+    ModelContractError,
     TrainingDefaults,
     VideoPredictionModel,
     VideoPredictor,
     all_variants,
     build_model,
+    checked,
     load_model_spec,
     make_config,
     model_from_config,
@@ -24,6 +27,7 @@ from vp2.models import (
     parse_overrides,
     predict_in_chunks,
 )
+from vp2.models.base import gradient_problem, model_failure
 from vp2.models.registry import MODELS
 
 # The big variants cost seconds to minutes per forward on a CPU (MCVD default/small sample
@@ -224,9 +228,69 @@ def test_checked_model_validates_inputs_and_outputs():
         with pytest.raises(ValueError, match=message):
             CheckedModel(_FakeModel(output)).predict(frames, actions)
     with pytest.raises(
-        TypeError, match="object does not implement VideoPredictionModel: missing name"
+        TypeError, match="object does not implement VideoPredictionModel: missing num_context"
     ):
         CheckedModel(object())
+
+
+class _Minimal:
+    """Only what the README asks of a model: four attributes and predict(context, actions)."""
+
+    num_context, num_future, image_size, action_dim = 2, 10, 32, 4
+
+    def __init__(self):
+        self.grad_enabled: list[bool] = []
+
+    def predict(self, context, actions):
+        self.grad_enabled.append(torch.is_grad_enabled())
+        drift = 0.01 * actions[:, 1:, 0].cumsum(1)  # (B, 10)
+        return (context[:, -1:] + drift[:, :, None, None, None]).clamp(0, 1)
+
+
+def test_a_minimal_model_gets_the_interface_defaults():
+    model = checked(_Minimal())
+    assert checked(model) is model  # wrapped once
+    assert model.name == "_Minimal" and model.max_batch_size == DEFAULT_MAX_BATCH_SIZE
+    frames, actions = _inputs(3, size=32)
+    # generator and grad are not passed to a predict that does not declare them.
+    out = model.predict(frames, actions, generator=torch.Generator(), grad=False)
+    assert out.shape == (3, 10, 3, 32, 32) and model.model.grad_enabled == [False]
+    assert predict_in_chunks(model, frames, actions, chunk_size=2).shape == (3, 10, 3, 32, 32)
+    model.max_batch_size = 7  # attributes are written through to the model
+    assert model.model.max_batch_size == 7 and model.max_batch_size == 7
+    assert gradient_problem(model) is None
+    # A model's own exception is marked as a model-boundary failure; so is a bad output.
+    with pytest.raises(ModelContractError) as info:
+        checked(_FakeModel(torch.zeros(3, 9, 3, 32, 32))).predict(frames, actions)
+    assert model_failure(info.value) == {
+        "model": "fake", "field": "predict output", "expected": "shape (3, 10, 3, 32, 32)",
+        "got": "(3, 9, 3, 32, 32)",
+    }
+    with pytest.raises(ModelContractError, match="_Minimal.predict: actions: expected shape"):
+        model.predict(frames, actions[..., :1])
+
+    class Raising(_Minimal):
+        def predict(self, context, actions):
+            raise RuntimeError("CUDA out of memory")
+
+    with pytest.raises(RuntimeError) as info:
+        checked(Raising()).predict(frames, actions)
+    assert model_failure(info.value) == {
+        "model": "Raising", "field": "predict() call", "expected": "no exception",
+        "got": "RuntimeError: CUDA out of memory",
+    }
+    assert model_failure(RuntimeError("a simulator error")) is None
+
+
+def test_gradient_problem_names_why():
+    from vp2.models.reference import RepeatLastFrame
+
+    assert "without a gradient" in gradient_problem(RepeatLastFrame(action_dim=4, image_size=32))
+
+    class Declared(_Minimal):
+        differentiable = False
+
+    assert gradient_problem(Declared()) == "declares differentiable = False"
 
 
 def test_predict_in_chunks_honours_max_batch_size():

@@ -37,6 +37,7 @@ from vp2.benchmark.results import (
     task_success,
 )
 from vp2.benchmark.runner import (
+    ModelFailure,
     RunConfig,
     RunResult,
     parse_model_args,
@@ -57,6 +58,7 @@ __all__ = [
     "Agent",
     "ClassifierRegistry",
     "ControlTrial",
+    "ModelFailure",
     "Observation",
     "PlannerConfig",
     "PlanningAgent",

@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from vp2.envs import split_name
-from vp2.models.base import CheckedModel, VideoPredictionModel, VideoPredictor, predict_in_chunks
+from vp2.models.base import VideoPredictionModel, checked, predict_in_chunks, unwrap
 from vp2.planning import (
     DEFAULT_SIGMA,
     OPTIMIZERS,
@@ -147,6 +147,11 @@ def build_cost(
 
 
 # --------------------------------------------------------------------------- planner
+
+
+#: Optimizers that need gradients of the predictions with respect to the actions: the runner
+#: checks the model gives them (:func:`vp2.models.base.gradient_problem`) before any trial.
+GRADIENT_OPTIMIZERS: tuple[str, ...] = ("cem_gd", "lbfgs")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -291,6 +296,7 @@ def tensor_to_frames(x: Tensor) -> np.ndarray:
 
 
 def _model_device(model: Any) -> torch.device | None:
+    model = unwrap(model)
     if isinstance(model, torch.nn.Module):
         for p in model.parameters():
             return p.device
@@ -305,8 +311,8 @@ class PlanningAgent:
     zero action first, so that two context frames exist).
 
     Args:
-        model: Any :class:`vp2.models.base.VideoPredictionModel`; wrapped in
-            :class:`vp2.models.base.CheckedModel` unless it already checks its calls.
+        model: Any :class:`vp2.models.base.VideoPredictionModel`; passed through
+            :func:`vp2.models.base.checked` (wrapped unless it already checks its calls).
         planner: Optimizer settings (SPEC defaults per task where ``None``).
         cost_mode: See :data:`CostMode`.
         classifiers: Where RoboDesk classifiers are looked up.
@@ -326,9 +332,7 @@ class PlanningAgent:
         device: str | torch.device | None = None,
         record_predictions: bool = False,
     ) -> None:
-        self.model = (
-            model if isinstance(model, (VideoPredictor, CheckedModel)) else CheckedModel(model)
-        )
+        self.model = checked(model)
         self.planner = planner or PlannerConfig()
         if cost_mode not in COST_MODES:
             raise ValueError(
@@ -449,6 +453,7 @@ __all__ = [
     "ClassifierRegistry",
     "CostKind",
     "CostMode",
+    "GRADIENT_OPTIMIZERS",
     "Observation",
     "PlannerConfig",
     "PlanningAgent",

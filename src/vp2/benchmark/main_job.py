@@ -9,7 +9,8 @@ first instance(s) of every task category of the shipped suite:
 
 and writes one run directory per agent under ``out`` (trials, GIFs, summaries, resumable),
 ``tasks.png`` (a contact sheet of the tasks' start images) and ``main.md``: one table with a
-column per agent. Default sizes keep it within 15 minutes on a 2-core CPU; the deviations
+column per agent and one for the shipped oracle's rates (:mod:`vp2.benchmark.shipped_oracle`),
+which normalises each agent's score. Default sizes keep it within 15 minutes on a 2-core CPU; the deviations
 from the SPEC protocol (one seed, the model's planner samples) are printed with the table.
 """
 
@@ -23,6 +24,7 @@ from pathlib import Path
 
 from vp2.benchmark.results import Summary
 from vp2.benchmark.runner import RunConfig, RunResult, run_benchmark
+from vp2.benchmark.shipped_oracle import NO_SHIPPED_ORACLE, ShippedOracle, load_shipped_oracle
 from vp2.data.suite import NUM_CONTROL_STEPS
 from vp2.utils.io import atomic_path
 
@@ -105,19 +107,35 @@ def _cell(summary: Summary, task: str) -> str:
     return "-"
 
 
-def comparison_table(results: dict[str, RunResult]) -> str:
-    """Markdown: one row per task category, one column per agent (success, trials)."""
+def comparison_table(results: dict[str, RunResult], shipped: ShippedOracle | None = None) -> str:
+    """Markdown: one row per task category, one column per agent (success, trials), and with
+    a shipped oracle a column of its rates and a row of each agent's normalised score."""
     names = list(results)
     tasks: list[str] = []
     for r in results.values():
         tasks += [row.task for row in r.summary.tasks if row.task not in tasks]
-    lines = ["| task | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    oracle, oracle_notes = ({}, []) if shipped is None else shipped.for_records(
+        [rec for r in results.values() for rec in r.records])
+    extra = [] if shipped is None else ["oracle (shipped)"]
+    cols = names + extra
+    lines = ["| task | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for task in tasks:
-        lines.append(f"| {task} | " + " | ".join(_cell(results[n].summary, task) for n in names)
-                     + " |")
-    lines.append("| **mean over the agent's tasks** | "
-                 + " | ".join(f"**{100 * results[n].summary.mean:.0f}%**" for n in names) + " |")
-    notes = []
+        cells = [_cell(results[n].summary, task) for n in names]
+        if shipped is not None:
+            o = oracle.get(task)
+            cells.append("-" if o is None else f"{100 * o.mean:.0f}% ({o.num_trials})")
+        lines.append(f"| {task} | " + " | ".join(cells) + " |")
+    cells = [f"**{100 * results[n].summary.mean:.0f}%**" for n in names]
+    if shipped is not None:
+        rates = [oracle[t].mean for t in tasks if t in oracle]
+        cells.append(f"**{100 * sum(rates) / len(rates):.0f}%**" if rates else "-")
+    lines.append("| **mean over the agent's tasks** | " + " | ".join(cells) + " |")
+    if shipped is not None:
+        scores = [results[n].summary.normalised for n in names]
+        lines.append("| **oracle-normalised score** | "
+                     + " | ".join("-" if x is None else f"**{x:.2f}**" for x in scores) + " | |")
+    notes = [f"- normalised by the {shipped.describe()}" if shipped is not None
+             else f"- {NO_SHIPPED_ORACLE}"] + [f"- {w}" for w in oracle_notes]
     for name, r in results.items():
         dev = r.config.deviations()
         if dev:
@@ -149,7 +167,7 @@ def run_main_job(config: MainJobConfig, gallery: bool = True) -> tuple[str, Path
         t0 = time.perf_counter()
         results[name] = run_benchmark(run_config)
         timings[name] = time.perf_counter() - t0
-    table = comparison_table(results)
+    table = comparison_table(results, load_shipped_oracle())
     took = ", ".join(_took(n, t, results[n]) for n, t in timings.items())
     text = (f"# vp2 main: success per task category\n\n{table}\n\n"
             f"Success = the task's criterion held at some step of a 15-step trial "

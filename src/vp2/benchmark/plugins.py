@@ -15,6 +15,11 @@ A model spec is one of
 A factory may also declare any of the parameters ``env`` (``"robodesk"``/``"tabletop"``),
 ``action_dim`` and ``device``; the runner fills those it does not get explicitly, so one spec
 serves both environments (the runner builds one model per environment).
+
+Modules are imported with the current directory on the import path (appended, so an installed
+package of the same name wins), so ``--model mymodule:make_model`` works from the folder of
+``mymodule.py``. :func:`build_model` is the one place a spec becomes a model: it returns it
+wrapped by :func:`vp2.models.base.checked` (checked calls, the interface's defaults).
 """
 
 from __future__ import annotations
@@ -22,12 +27,16 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import inspect
+import os
+import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import torch
 import yaml
+
+from vp2.models.base import checked, unwrap
 
 #: Built-in model names and their factories.
 BUILTIN_MODELS: dict[str, str] = {
@@ -55,6 +64,7 @@ def resolve_target(target: str) -> Callable[..., Any]:
         module_name, _, attr = target.rpartition(".")
     if not module_name or not attr:
         raise PluginError(f"target {target!r}: expected 'package.module:factory'")
+    _add_cwd_to_path()
     try:
         obj: Any = importlib.import_module(module_name)
     except ImportError as exc:
@@ -70,6 +80,15 @@ def resolve_target(target: str) -> Callable[..., Any]:
     if not callable(obj):
         raise PluginError(f"target {target!r} is not callable")
     return obj
+
+
+def _add_cwd_to_path() -> None:
+    """Lets ``mymodule:factory`` resolve from the folder of ``mymodule.py``, as ``python``
+    would (a console script like ``vp2`` has its own folder on ``sys.path``, not the current
+    one). Appended: an installed package of the same name still wins."""
+    cwd = os.getcwd()
+    if cwd not in sys.path and "" not in sys.path:
+        sys.path.append(cwd)
 
 
 def instantiate(node: Any) -> Any:
@@ -202,10 +221,18 @@ def build_model(
     env: str,
     action_dim: int,
     device: str | torch.device,
+    check: bool = True,
 ) -> Any:
     """The model a spec names, for one environment, on ``device``.
 
-    ``torch.nn.Module`` models are moved to ``device`` and put in eval mode.
+    ``torch.nn.Module`` models are moved to ``device`` and put in eval mode. With ``check``
+    (default) the model is returned as :func:`vp2.models.base.checked` makes it: every
+    ``predict`` call checked, ``name``/``max_batch_size`` defaulted, ``generator``/``grad``
+    passed only to a ``predict`` that declares them.
+
+    Raises:
+        PluginError: the spec cannot be resolved.
+        TypeError: (``check``) the object lacks a required attribute of the interface.
     """
     name = _checkpoint_model_name(spec) if not _is_yaml(spec) else None
     if name is not None:
@@ -222,16 +249,18 @@ def build_model(
     )
     if isinstance(model, torch.nn.Module):
         model = model.to(device).eval()
-    return model
+    return checked(model) if check else model
 
 
 def model_identity(spec: str, args: Mapping[str, Any] | None, model: Any) -> dict[str, Any]:
     """JSON-able identity of a built model for result records."""
+    name = getattr(model, "name", None)  # a CheckedModel's default: the class name
+    model = unwrap(model)
     cls = type(model)
     identity: dict[str, Any] = {
         "spec": spec,
         "args": dict(args or {}),
-        "name": getattr(model, "name", cls.__name__),
+        "name": name if isinstance(name, str) and name else cls.__name__,
         "class": f"{cls.__module__}.{cls.__qualname__}",
     }
     config = getattr(model, "config", None)

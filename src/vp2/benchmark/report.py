@@ -8,8 +8,9 @@ network access. It shows
   protocol;
 * success per task as grouped bars, one bar per model, error bars from the lowest to the
   highest control-run (seed) rate (the paper's Figure 3), and the same numbers as a table;
-* the oracle-normalised score, when a simulator-oracle run is among the inputs or a run
-  names one in its ``oracle`` setting;
+* the oracle-normalised score: by a simulator-oracle run among the inputs, else by the one a
+  run names in its ``oracle`` setting, else by the shipped oracle
+  (:mod:`vp2.benchmark.shipped_oracle`), with how that was measured;
 * the metrics-versus-control study (:mod:`vp2.benchmark.study`) when ``metrics.json`` files
   are given;
 * a gallery of trial videos per model and task (execution next to the goal image, and the
@@ -36,13 +37,17 @@ import yaml
 
 from vp2.benchmark.charts import bar_chart
 from vp2.benchmark.results import Summary, is_ok, read_trials, summarize
+from vp2.benchmark.shipped_oracle import (
+    NO_SHIPPED_ORACLE,
+    is_oracle_config,
+    load_shipped_oracle,
+    summarize_run,
+)
 
 log = logging.getLogger(__name__)
 
 #: File name of the report inside a run directory.
 REPORT_FILE = "report.html"
-#: Model specs of the simulator oracle.
-ORACLE_SPECS = ("simulator", "oracle")
 #: Trials shown per model and task in the gallery.
 DEFAULT_TRIALS_PER_TASK = 3
 #: GIF bytes embedded at most (the rest of the gallery is left out, and the page says so).
@@ -103,7 +108,7 @@ def load_runs(
     ``labels``: one per run directory (``None`` or empty: the model spec, :func:`model_label`).
 
     An oracle run among ``run_dirs`` normalises every other run; otherwise a run's own
-    ``oracle`` setting is used if that directory exists.
+    ``oracle`` setting is used if that directory exists, else the shipped oracle.
 
     Raises:
         FileNotFoundError: a directory that is not a run (no ``trials.jsonl``).
@@ -120,9 +125,7 @@ def load_runs(
             raise FileNotFoundError(f"{run_dir}: no trials.jsonl (not a vp2 run directory)")
         config, deviations = _read_config(run_dir)
         records = read_trials(run_dir)
-        is_oracle = config.get("agent", "planning") == "planning" and config.get("model") in (
-            ORACLE_SPECS
-        )
+        is_oracle = is_oracle_config(config)
         runs.append(
             RunView(
                 run_dir,
@@ -141,15 +144,22 @@ def load_runs(
         if counts[r.label] > 1:
             r.label = f"{r.label} [{r.run_dir.name}]"
     oracle = next((r for r in runs if r.is_oracle), None)
+    shipped = None
+    if any(not r.is_oracle for r in runs) and oracle is None:
+        shipped = load_shipped_oracle()
     for r in runs:
         if r.is_oracle:
             continue
         if oracle is not None:
-            r.summary = summarize(r.records, oracle.records)
-            r.oracle_source = f"{oracle.label} ({oracle.run_dir})"
+            r.oracle_source = f"oracle run {oracle.label} ({oracle.run_dir})"
+            r.summary = summarize(r.records, oracle.records, oracle_source=r.oracle_source)
         elif r.config.get("oracle") and Path(r.config["oracle"]).exists():
-            r.summary = summarize(r.records, read_trials(r.config["oracle"]))
-            r.oracle_source = str(r.config["oracle"])
+            r.summary = summarize_run(r.records, oracle_run=r.config["oracle"])
+            r.oracle_source = r.summary.oracle_source
+        else:
+            # Without a shipped oracle the section says so once, not every run's notes.
+            r.summary = summarize_run(r.records, shipped=shipped, note_missing=False)
+            r.oracle_source = r.summary.oracle_source
     return runs
 
 
@@ -243,13 +253,24 @@ def _normalised_section(runs: Sequence[RunView]) -> str:
                 f"[{s.normalised_min:.3f}, {s.normalised_max:.3f}] "
                 f"<span class=sub>(oracle: {escape(r.oracle_source or '')})</span></li>"
             )
+        elif r.oracle_source:
+            items.append(
+                f"<li><b>{escape(r.label)}</b>: not available (no task the oracle has for its "
+                "instances, see the notes)</li>"
+            )
         else:
-            items.append(f"<li><b>{escape(r.label)}</b>: not available (no oracle run given)</li>")
+            items.append(f"<li><b>{escape(r.label)}</b>: not available (no oracle)</li>")
+    missing = (
+        f"<p class=warn>{escape(NO_SHIPPED_ORACLE)}.</p>"
+        if any(not r.is_oracle and r.oracle_source is None for r in runs)
+        else ""
+    )
     return (
         "<p>Mean success over tasks divided by the simulator oracle's on the same tasks (a "
-        "ratio of means), [min, max] over seeds. Give an oracle run to <code>vp2 report</code> "
-        "or run with <code>--oracle RUN_DIR</code> to get it.</p>"
-        f"<ul>{''.join(items)}</ul>"
+        "ratio of means), [min, max] over seeds. The oracle: a simulator-oracle run given to "
+        "<code>vp2 report</code>, else the run's <code>--oracle RUN_DIR</code>, else the "
+        "shipped oracle.</p>"
+        f"{missing}<ul>{''.join(items)}</ul>"
     )
 
 

@@ -10,7 +10,8 @@ then the mean over seeds with min and max. Trials that ended in an error count n
 success nor as a failure; they are reported separately. The overall score is the mean over
 task categories; normalised by the simulator oracle's overall score on the same tasks
 (ratio of the means, so a task on which the oracle rarely succeeds does not blow up the
-score).
+score). The oracle's per-task rates come from an oracle run's records or from the shipped
+oracle (:mod:`vp2.benchmark.shipped_oracle`), both as :class:`TaskSummary` rows.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import json
 import math
 import os
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -171,6 +172,7 @@ class Summary:
         normalised_max: ``max`` / the oracle's mean.
         warnings: Things a reader of the numbers must know (mixed cost kinds, unequal seeds,
             errors, tasks missing from the oracle results).
+        oracle_source: What the scores were normalised by (one line), ``None`` if by nothing.
     """
 
     tasks: list[TaskSummary]
@@ -184,6 +186,7 @@ class Summary:
     normalised_min: float | None = None
     normalised_max: float | None = None
     warnings: list[str] = dataclasses.field(default_factory=list)
+    oracle_source: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -239,13 +242,20 @@ def task_success(records: Iterable[dict[str, Any]]) -> dict[str, TaskSummary]:
 
 
 def summarize(
-    records: Sequence[dict[str, Any]], oracle_records: Sequence[dict[str, Any]] | None = None
+    records: Sequence[dict[str, Any]],
+    oracle_records: Sequence[dict[str, Any]] | None = None,
+    *,
+    oracle: Mapping[str, TaskSummary] | None = None,
+    oracle_source: str | None = None,
 ) -> Summary:
-    """The scores of a run, optionally normalised by an oracle run's.
+    """The scores of a run, optionally normalised by the oracle's.
 
     Args:
         records: Trial records of the run.
         oracle_records: Trial records of a simulator-oracle run on (at least) the same tasks.
+        oracle: Or the oracle's per-task rows directly (e.g. the shipped oracle's,
+            :meth:`vp2.benchmark.shipped_oracle.ShippedOracle.for_records`).
+        oracle_source: What the oracle is, one line (shown with the normalised score).
 
     Returns:
         The :class:`Summary`.
@@ -280,12 +290,17 @@ def summarize(
         num_errors=sum(t.num_errors for t in per_task.values()),
         warnings=warnings,
     )
+    if oracle_records is not None and oracle is not None:
+        raise ValueError("give the oracle's records or its per-task rows, not both")
     if oracle_records is not None:
-        _normalise(summary, task_success(oracle_records))
+        oracle = task_success(oracle_records)
+    if oracle is not None:
+        summary.oracle_source = oracle_source
+        _normalise(summary, oracle)
     return summary
 
 
-def _normalise(summary: Summary, oracle: dict[str, TaskSummary]) -> None:
+def _normalise(summary: Summary, oracle: Mapping[str, TaskSummary]) -> None:
     missing = [
         t.task for t in summary.tasks if t.task not in oracle or not oracle[t.task].num_trials
     ]
@@ -344,6 +359,8 @@ def format_summary(summary: Summary, title: str | None = None) -> str:
             f"Oracle-normalised score: {summary.normalised:.3f} "
             f"[{summary.normalised_min:.3f}, {summary.normalised_max:.3f}] (mean [min, max] over seeds)",
         ]
+        if summary.oracle_source:
+            lines.append(f"Normalised by the {summary.oracle_source}")
     if summary.warnings:
         lines += ["", "Notes:"] + [f"- {w}" for w in summary.warnings]
     return "\n".join(lines)

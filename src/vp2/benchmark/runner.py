@@ -11,9 +11,12 @@
    writes files: a GIF per trial, then one appended JSON line;
 4. retries a crashed trial (model error, simulator error, dead worker) a bounded number of
    times and otherwise records it as an error, with its traceback, never as a success or a
-   failure;
+   failure; but a model that fails at its boundary the same way twice in a row before any
+   trial finished stops the run (:class:`ModelFailure`), and a model that does not fit the
+   run (action size, gradients for ``cem_gd``/``lbfgs``) is refused before any trial;
 5. writes and returns the summary table (per task: mean success over seeds with min/max,
-   normalised by an oracle run if one is given).
+   normalised by an oracle run if one is given, else by the shipped oracle,
+   :mod:`vp2.benchmark.shipped_oracle`; an oracle run itself is not normalised).
 
 Parallelism policy: trials are the unit of parallel work. With ``workers > 1`` every trial
 process plans serially, and a model that runs its own process pool (the simulator oracle's
@@ -52,7 +55,13 @@ from tqdm.auto import tqdm
 
 import vp2
 from vp2.benchmark import plugins
-from vp2.benchmark.agent import COST_MODES, Agent, PlannerConfig, PlanningAgent
+from vp2.benchmark.agent import (
+    COST_MODES,
+    GRADIENT_OPTIMIZERS,
+    Agent,
+    PlannerConfig,
+    PlanningAgent,
+)
 from vp2.benchmark.results import (
     TRIALS_FILE,
     Summary,
@@ -61,13 +70,14 @@ from vp2.benchmark.results import (
     format_summary,
     is_ok,
     read_trials,
-    summarize,
     trial_key,
 )
+from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
 from vp2.benchmark.trial import NUM_CONTROL_STEPS, ControlTrial, TrialResult
 from vp2.data.suite import TaskInstance, TaskSuite
-from vp2.envs import ENV_TASKS, TASK_NAMES, split_name
+from vp2.envs import ENV_TASKS, TASK_NAMES, env_class, split_name
 from vp2.envs.base import Env
+from vp2.models.base import gradient_problem, model_failure
 from vp2.planning import OPTIMIZERS
 from vp2.utils.executors import EXECUTORS, RayExecutor, WorkerLost
 from vp2.utils.io import atomic_path, remove_stale_temporaries, write_json_atomic
@@ -81,6 +91,16 @@ GIF_DIR = "gifs"
 AGENTS: tuple[str, ...] = ("planning", "random")
 #: Control runs per task the SPEC asks for (SPEC §4: ≥ 3 seeds).
 MIN_SEEDS = 3
+#: Identical model-boundary failures in a row, before any trial finished, that stop a run.
+FAIL_FAST_AFTER = 2
+#: Where the model interface is documented (named in the messages of model failures).
+MODEL_DOCS = 'docs/benchmark.md, "Plugins"'
+
+
+class ModelFailure(RuntimeError):
+    """The run stopped because of the model: it does not fit the run (checked before any
+    trial), or its first trials failed at the model boundary with the same error. Trials
+    finished before stay in the run directory; fix the model and resume."""
 #: Fields of :class:`RunConfig` that change what a trial does. A resumed run must keep them;
 #: the others (which trials, how many processes, where) may change between sessions.
 PROTOCOL_FIELDS: tuple[str, ...] = (
@@ -148,7 +168,8 @@ class RunConfig:
         save_predictions: Also a GIF of the chosen plan's predicted frames per planning step
             (``--save-predictions``; one extra model call per step).
         oracle: Run directory (or ``trials.jsonl``) of a simulator-oracle run, to normalise
-            the scores (``--oracle``).
+            the scores (``--oracle``); ``None``: the shipped oracle
+            (:mod:`vp2.benchmark.shipped_oracle`), if there is one.
         progress: Show a progress bar with ETA (``--no-progress`` off).
     """
 
@@ -358,14 +379,22 @@ class _Outcome:
 class _WorkerState:
     """Per-process state: the run config, one agent per environment, reusable envs."""
 
-    def __init__(self, config: RunConfig, in_pool: bool) -> None:
+    def __init__(self, config: RunConfig, in_pool: bool, envs: Sequence[str] = ()) -> None:
         self.config = config
         self.in_pool = in_pool
+        #: Environments of the run: :meth:`prepare` builds their agents before any trial.
+        self.envs_of_run = tuple(envs)
         self.device = torch.device(
             config.device or ("cuda" if torch.cuda.is_available() else "cpu")
         )
         self.agents: dict[str, tuple[Agent, dict[str, Any]]] = {}
         self.envs: collections.OrderedDict[str, Env] = collections.OrderedDict()
+
+    def prepare(self) -> None:
+        """Builds (and checks) the agent of every environment of the run, so that a model
+        that cannot run some task stops the run before any trial, not halfway."""
+        for env_name in self.envs_of_run:
+            self.agent(env_name, int(env_class(env_name).action_dim))
 
     def agent(self, env_name: str, action_dim: int) -> tuple[Agent, dict[str, Any]]:
         if env_name not in self.agents:
@@ -386,6 +415,7 @@ class _WorkerState:
             log.warning("running trials in parallel: %s uses 1 worker per trial", cfg.model)
             model.num_workers = 1
         identity = plugins.model_identity(cfg.model, cfg.model_args, model)
+        _check_model_fits(model, cfg, env_name, action_dim, self.device)
         agent = PlanningAgent(
             model,
             planner=cfg.planner(),
@@ -415,25 +445,56 @@ class _WorkerState:
         self.agents.clear()
 
 
+class ModelMismatch(ValueError):
+    """A built model that cannot run the run's tasks (raised before any trial)."""
+
+
+def _check_model_fits(
+    model: Any, cfg: RunConfig, env_name: str, action_dim: int, device: torch.device
+) -> None:
+    name = getattr(model, "name", type(model).__name__)
+    if int(model.action_dim) != action_dim:
+        raise ModelMismatch(
+            f"model {name} has action_dim {model.action_dim}, but the {env_name} tasks have "
+            f"{action_dim}-D actions; build it for the environment (a factory that declares an "
+            f"`action_dim` parameter gets the environment's; {MODEL_DOCS})"
+        )
+    if cfg.optimizer in GRADIENT_OPTIMIZERS:
+        problem = gradient_problem(model, device)
+        if problem is not None:
+            raise ModelMismatch(
+                f"the {cfg.optimizer} optimizer needs gradients of the predictions with respect "
+                f"to the actions, but model {name} {problem}; plan with --optimizer mppi or cem"
+            )
+
+
 _STATE: _WorkerState | None = None
 
 
-def _init_worker(config: RunConfig) -> None:
+def _init_worker(config: RunConfig, envs: Sequence[str] = ()) -> None:
     """Initialiser of trial worker processes."""
     global _STATE
     # Several trial processes share the machine's cores; one torch thread each avoids
     # oversubscription (and OpenMP stalls on shared cores, see docs/planning.md).
     torch.set_num_threads(1)
-    _STATE = _WorkerState(config, in_pool=True)
+    _STATE = _WorkerState(config, in_pool=True, envs=envs)
+
+
+def _envs_of(jobs: Sequence[_Job]) -> tuple[str, ...]:
+    return tuple(sorted({split_name(job.key[0])[0] for job in jobs}))
 
 
 def _error(exc: BaseException, where: str) -> dict[str, Any]:
-    return {
+    error = {
         "type": type(exc).__name__,
         "message": str(exc),
         "where": where,
         "traceback": "".join(traceback.format_exception(exc)),
     }
+    failure = model_failure(exc)
+    if failure is not None:  # at the model boundary: what the driver's fail-fast compares
+        error["model_failure"] = failure
+    return error
 
 
 def _base_record(job: _Job, identity: dict[str, Any]) -> dict[str, Any]:
@@ -465,6 +526,12 @@ def _attempt_trial(job: _Job) -> _Outcome:
     assert _STATE is not None, "worker state is not initialised"
     cfg = _STATE.config
     fallback_identity = {"spec": cfg.model, "args": dict(cfg.model_args)}
+    try:
+        _STATE.prepare()
+    except Exception as exc:
+        where = "model_check" if isinstance(exc, ModelMismatch) else "model_build"
+        record = {**_base_record(job, fallback_identity), "success": None}
+        return _Outcome(job.key, {**record, "error": _error(exc, where)}, fatal=True)
     try:
         env = _STATE.env(job.instance)
     except Exception as exc:  # a simulator that cannot even be built
@@ -648,7 +715,7 @@ def _execute_in_pool(
             max_workers=config.workers,
             mp_context=mp.get_context("spawn"),
             initializer=_init_worker,
-            initargs=(config,),
+            initargs=(config, _envs_of(jobs)),
         )
 
     pool = new_pool()
@@ -754,7 +821,8 @@ def _execute_on_ray(
         config = dataclasses.replace(config, device="cpu")
     with executor:
         results = executor.imap_unordered(
-            _run_job, _LiveQueue(jobs, requeue), _init_worker, (config,), on_lost="yield"
+            _run_job, _LiveQueue(jobs, requeue), _init_worker, (config, _envs_of(jobs)),
+            on_lost="yield",
         )
         try:
             for job, outcome in results:
@@ -778,6 +846,9 @@ def run_benchmark(config: RunConfig) -> RunResult:
             different protocol settings.
         FileExistsError: the output directory holds a run and ``resume`` is off.
         RuntimeError: the model could not be built in a worker (nothing can run).
+        ModelFailure: the model does not fit the run (action size; gradients for
+            ``cem_gd``/``lbfgs``), or its first trials failed at the model boundary with the
+            same error :data:`FAIL_FAST_AFTER` times in a row (finished trials are kept).
     """
     config.validate()
     if config.agent == "planning":
@@ -798,6 +869,11 @@ def run_benchmark(config: RunConfig) -> RunResult:
     max_attempts = config.max_retries + 1
     requeue: collections.deque[_Job] = collections.deque()
     num_run = successes = finished = 0
+    # Model-boundary failures in a row while no trial has finished in this session, and the
+    # final error records among them, held back until the streak ends (if the run stops, those
+    # trials are not finished: a resume runs them again).
+    streak: list[dict[str, Any]] = []
+    held: list[dict[str, Any]] = []
     bar = tqdm(total=len(jobs), unit="trial", desc="vp2 run", disable=not config.progress)
     if config.executor == "ray":
         stream = _execute_on_ray(jobs, config, requeue)
@@ -819,11 +895,27 @@ def run_benchmark(config: RunConfig) -> RunResult:
                     outcome = _Outcome(job.key, {**record, "error": error, "finished_at": _now()})
                 if outcome.fatal:
                     err = outcome.record["error"]
+                    if err["where"] == "model_check":
+                        raise ModelFailure(
+                            f"model {config.model!r} cannot run these tasks: {err['message']}"
+                        )
                     raise RuntimeError(
                         f"could not build the model {config.model!r} "
                         f"({err['type']}: {err['message']}):\n{err['traceback']}"
                     )
                 record = outcome.record
+                failure = (record["error"] or {}).get("model_failure")
+                if finished == 0 and failure is not None:
+                    same = bool(streak) and _same(streak[-1], failure)
+                    streak = [*streak, failure] if same else [failure]
+                    if len(streak) >= FAIL_FAST_AFTER:
+                        message = _fail_fast_message(config, run_dir, failure, len(streak))
+                        raise ModelFailure(message)
+                elif streak:
+                    streak = []
+                    for r in held:
+                        trial_log.append(r)
+                    held = []
                 if record["error"] is not None and job.attempt < max_attempts:
                     log.warning(
                         "trial %s failed (attempt %d/%d): %s: %s",
@@ -841,19 +933,29 @@ def run_benchmark(config: RunConfig) -> RunResult:
                 record["previous_errors"] = job.errors
                 if outcome.result is not None and config.save_gifs:
                     _write_gifs(run_dir, outcome.result, record)
-                trial_log.append(record)
+                if streak:
+                    held.append(record)
+                else:
+                    trial_log.append(record)
                 num_run += 1
                 finished += record["error"] is None
                 successes += bool(record.get("success"))
                 bar.update(1)
                 bar.set_postfix(success=f"{successes}/{finished}", errors=num_run - finished)
+            for r in held:  # the run ended with a streak shorter than FAIL_FAST_AFTER
+                trial_log.append(r)
     finally:
         bar.close()
         stream.close()
 
     records = read_trials(run_dir)
-    oracle_records = read_trials(config.oracle) if config.oracle else None
-    summary = summarize(records, oracle_records)
+    is_oracle = is_oracle_config(config.to_dict())
+    summary = summarize_run(
+        records,
+        is_oracle=is_oracle,
+        oracle_run=config.oracle,
+        shipped=None if is_oracle or config.oracle else load_shipped_oracle(),
+    )
     summary.warnings += [f"not the SPEC protocol: {d}" for d in config.deviations()]
     write_json_atomic(run_dir / SUMMARY_JSON, _finite(summary.to_dict()))
     with atomic_path(run_dir / SUMMARY_FILE) as tmp:
@@ -875,13 +977,33 @@ def run_benchmark(config: RunConfig) -> RunResult:
     )
 
 
+def _same(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """The same model failure: model, field and what was expected (not the exact values)."""
+    keys = ("model", "field", "expected")
+    if a.get("expected") == "no exception":  # an exception from predict: its text too
+        keys = (*keys, "got")
+    return all(a.get(k) == b.get(k) for k in keys)
+
+
+def _fail_fast_message(
+    config: RunConfig, run_dir: Path, failure: dict[str, Any], count: int
+) -> str:
+    kept = len(read_trials(run_dir))
+    return (
+        f"stopped: model {failure['model']} ({config.model}) failed its first {count} trial "
+        f"attempts the same way, at the model boundary: {failure['field']}: expected "
+        f"{failure['expected']}, got {failure['got']}. See {MODEL_DOCS} for the interface. "
+        f"{kept} finished trial(s) kept in {run_dir}; fix the model and continue with --resume"
+    )
+
+
 def _retrying_in_process(
     jobs: list[_Job], config: RunConfig, requeue: collections.deque[_Job]
 ) -> Iterator[tuple[_Job, _Outcome | None]]:
     """In-process execution that also drains the retry queue the driver fills."""
     global _STATE
     queue = collections.deque(jobs)
-    _STATE = _WorkerState(config, in_pool=False)
+    _STATE = _WorkerState(config, in_pool=False, envs=_envs_of(jobs))
     try:
         while queue or requeue:
             queue.extend(requeue)

@@ -13,6 +13,9 @@ robodesk  push_red, push_green, push_blue, open_slide, open_drawer, flat_block_o
           upright_block_off_table
 tabletop  push_large_cube, push_small_cube, push_cylinder, push_sphere
 ========  =================================================================================
+
+Every environment is also a Gymnasium environment, registered as ``vp2/<Env>-<Task>-v0``
+(``gymnasium.make("vp2/RoboDesk-PushRed-v0")``, :mod:`vp2.envs.registration`).
 """
 
 from __future__ import annotations
@@ -92,8 +95,13 @@ def make_env_from_metadata(meta: dict[str, Any], **overrides: Any) -> Env:
     return make_env(name, **kwargs)
 
 
+from vp2.envs.registration import GYM_IDS, register_envs  # noqa: E402 (needs the names above)
+
+register_envs()
+
 __all__ = [
     "ENV_NAMES",
+    "GYM_IDS",
     "ENV_TASKS",
     "Env",
     "ROBODESK_TASKS",

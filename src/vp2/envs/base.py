@@ -16,18 +16,34 @@ task suites, planning and the simulator oracle all see the same thing:
 
 Actions live in ``[-1, 1]^action_dim``. Actions outside that box are clipped; actions of the
 wrong shape or containing NaN/inf raise ``ValueError``.
+
+Every environment is a :class:`gymnasium.Env` (``gymnasium.make("vp2/RoboDesk-PushRed-v0")``,
+see :mod:`vp2.envs.registration`): ``action_space`` is ``Box(-1, 1, (action_dim,), float32)``,
+``observation_space`` is ``Box(0, 255, (S, S, 3), uint8)`` for ``observation_size=S``, and
+``None`` for ``observation_size=None`` (``reset``/``step`` then return ``None`` observations,
+which no gymnasium space holds: such an env is for the benchmark's own state-only use, and
+:func:`gymnasium.make` refuses it). ``np_random`` is the environment's own generator (the one
+``reset(seed=...)`` reseeds). With ``render_mode="rgb_array"``, ``render()`` returns the
+64x64 benchmark frame; ``render(height, width)`` any size.
 """
 
 from __future__ import annotations
 
 import abc
-from typing import Any
+from typing import Any, ClassVar
 
+import gymnasium
 import numpy as np
+from gymnasium import spaces
 
 
-class Env(abc.ABC):
+class Env(gymnasium.Env, abc.ABC):  # type: ignore[type-arg]
     """Base class of the benchmark environments. See the module docstring for the contract."""
+
+    #: Gymnasium metadata: ``render()`` gives an RGB array; 5 Hz control (0.2 s per step).
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 5}
+    #: Gymnasium's render mode: ``None`` or ``"rgb_array"`` (set by :func:`gymnasium.make`).
+    render_mode: str | None = None
 
     #: Registered name, ``"<env>/<task>"``, e.g. ``"robodesk/push_red"``.
     name: str
@@ -96,6 +112,48 @@ class Env(abc.ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    # ---- gymnasium spaces and generator -----------------------------------------------------
+    @property
+    def action_space(self) -> spaces.Box:
+        """``Box(-1, 1, (action_dim,), float32)``, one object per environment (seedable)."""
+        space = self.__dict__.get("_action_space")
+        if space is None or space.shape != (self.action_dim,):
+            space = spaces.Box(-1.0, 1.0, (self.action_dim,), np.float32)
+            self.__dict__["_action_space"] = space
+        return space
+
+    @action_space.setter
+    def action_space(self, space: spaces.Space) -> None:
+        self.__dict__["_action_space"] = space
+
+    @property
+    def observation_space(self) -> spaces.Box | None:
+        """``Box(0, 255, (S, S, 3), uint8)`` for ``observation_size=S``; ``None`` without
+        observations (``observation_size=None``)."""
+        size = getattr(self, "observation_size", None)
+        if size is None:
+            return None
+        space = self.__dict__.get("_observation_space")
+        if space is None or space.shape != (size, size, 3):
+            space = spaces.Box(0, 255, (size, size, 3), np.uint8)
+            self.__dict__["_observation_space"] = space
+        return space
+
+    @observation_space.setter
+    def observation_space(self, space: spaces.Space) -> None:
+        self.__dict__["_observation_space"] = space
+
+    # Gymnasium's generator is the environment's own (``self._rng``), which ``reset(seed=...)``
+    # reseeds: ``np_random`` and gymnasium's seeding checks see the draws ``reset`` makes.
+    @property
+    def _np_random(self) -> np.random.Generator | None:  # type: ignore[override]
+        return self.__dict__.get("_rng")
+
+    @_np_random.setter
+    def _np_random(self, rng: np.random.Generator | None) -> None:
+        if rng is not None:
+            self.__dict__["_rng"] = rng
 
     # ---- shared input checking -------------------------------------------------------------
     def check_action(self, action: Any) -> np.ndarray:

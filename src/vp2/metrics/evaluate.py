@@ -40,7 +40,7 @@ from vp2.data.storage import MANIFEST, load_manifest
 from vp2.metrics.fvd import FrechetVideoDistance, fvd_from_features
 from vp2.metrics.image import mse, psnr, ssim
 from vp2.metrics.lpips import BACKBONES, LPIPS, MissingWeightsError
-from vp2.models.base import NUM_CONTEXT, NUM_FUTURE, CheckedModel, VideoPredictor, predict_in_chunks
+from vp2.models.base import NUM_CONTEXT, NUM_FUTURE, checked, predict_in_chunks
 from vp2.utils.io import write_json_atomic
 
 log = logging.getLogger(__name__)
@@ -87,8 +87,7 @@ def _build_model(
             model_spec, model_args, env=env or "", action_dim=dataset.action_dim, device=device
         )
         identity = model_identity(model_spec, model_args, model)
-    if not isinstance(model, VideoPredictor):
-        model = CheckedModel(model)  # a wrong output shape or range fails with the model's name
+    model = checked(model)  # a wrong output shape or range fails with the model's name
     height, width, _ = dataset.image_shape  # stored frames are (H, W, 3)
     if model.image_size != height or height != width:
         raise ValueError(

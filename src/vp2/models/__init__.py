@@ -8,16 +8,19 @@
 """
 
 from vp2.models.base import (
+    DEFAULT_MAX_BATCH_SIZE,
     NUM_CONTEXT,
     NUM_FUTURE,
     CheckedModel,
     LossOutput,
+    ModelContractError,
     PerceptualLoss,
     TrainingDefaults,
     VideoPredictionModel,
     VideoPredictor,
     check_inputs,
     check_output,
+    checked,
     predict_in_chunks,
 )
 from vp2.models.fitvid import FitVid, FitVidConfig
@@ -45,6 +48,7 @@ from vp2.models.svg_prime import SVGPrime, SVGPrimeConfig
 
 __all__ = [
     "CHECKPOINT_FORMAT",
+    "DEFAULT_MAX_BATCH_SIZE",
     "MODELS",
     "NUM_CONTEXT",
     "NUM_FUTURE",
@@ -58,6 +62,7 @@ __all__ = [
     "MaskViTConfig",
     "MaskViTTokenizer",
     "MaskViTTokenizerConfig",
+    "ModelContractError",
     "PerceptualLoss",
     "SVGPrime",
     "SVGPrimeConfig",
@@ -71,6 +76,7 @@ __all__ = [
     "build_model",
     "check_inputs",
     "check_output",
+    "checked",
     "latest_checkpoint",
     "load_model",
     "load_model_spec",

@@ -37,6 +37,9 @@ PerceptualLoss = Callable[[Tensor, Tensor], Tensor]
 # Float rounding (e.g. uint8 / 255 on another device, or a clamp in half precision) may land a
 # hair outside the nominal range; anything beyond this is a caller bug.
 _RANGE_TOLERANCE = 1e-5
+#: ``max_batch_size`` of a model that does not declare one (the planner's 200 samples in one
+#: call; 800-sample tasks are split in four).
+DEFAULT_MAX_BATCH_SIZE = 200
 _FLOAT_DTYPES = (torch.float16, torch.bfloat16, torch.float32, torch.float64)
 
 
@@ -73,6 +76,13 @@ class VideoPredictionModel(Protocol):
       device of ``context_frames``: frames ``num_context .. num_context + num_future - 1``.
 
     A model treats batch elements independently (the planner differentiates summed scores).
+
+    Only ``num_context``, ``num_future``, ``action_dim``, ``image_size`` and
+    ``predict(context_frames, actions)`` are required of a plugin: :class:`CheckedModel`
+    supplies ``name`` (the class name) and ``max_batch_size``
+    (:data:`DEFAULT_MAX_BATCH_SIZE`), and passes ``generator`` and ``grad`` only to a
+    ``predict`` that declares them (for one that does not declare ``grad``, ``grad=False``
+    runs it under ``torch.no_grad()``).
     """
 
     name: str
@@ -95,8 +105,61 @@ class VideoPredictionModel(Protocol):
 # --------------------------------------------------------------------------- boundary checks
 
 
-def _fail(model: str, field: str, expected: str, got: str) -> ValueError:
-    return ValueError(f"{model}.predict: {field}: expected {expected}, got {got}")
+class ModelContractError(ValueError):
+    """A ``predict`` call that broke the interface: which model, which field, expected vs got.
+
+    ``field`` is ``context_frames``, ``actions`` or ``output`` (or an interface attribute such
+    as ``action_dim``). A ``ValueError``, so existing handlers keep working.
+    """
+
+    def __init__(self, model: str, field: str, expected: str, got: str, call: str = "predict"):
+        super().__init__(f"{model}.{call}: {field}: expected {expected}, got {got}")
+        self.model, self.field, self.expected, self.got, self.call = (
+            model, field, expected, got, call
+        )
+
+    def __reduce__(self) -> tuple[Any, ...]:  # picklable across worker processes
+        return (type(self), (self.model, self.field, self.expected, self.got, self.call))
+
+
+def _fail(model: str, field: str, expected: str, got: str) -> ModelContractError:
+    return ModelContractError(model, field, expected, got)
+
+
+#: Attribute set on an exception raised inside a model's ``predict`` (by :class:`CheckedModel`
+#: and :class:`VideoPredictor`), naming the call, e.g. ``"DriftModel.predict"``.
+MODEL_CALL_ATTR = "vp2_model_call"
+
+
+def _mark_model_call(exc: BaseException, call: str) -> None:
+    with contextlib.suppress(AttributeError, TypeError):
+        setattr(exc, MODEL_CALL_ATTR, call)
+
+
+def model_failure(exc: BaseException) -> dict[str, str] | None:
+    """What a failure at the model boundary is about, or ``None`` for any other error.
+
+    A boundary failure is a :class:`ModelContractError` (a checked input or output) or an
+    exception raised inside the model's ``predict``. Returns ``{"model", "field", "expected",
+    "got"}`` (plain strings, for the runner's records and its fail-fast).
+    """
+    if isinstance(exc, ModelContractError):
+        return {
+            "model": exc.model,
+            "field": f"{exc.call} {exc.field}",
+            "expected": exc.expected,
+            "got": exc.got,
+        }
+    call = getattr(exc, MODEL_CALL_ATTR, None)
+    if isinstance(call, str):
+        model, _, method = call.rpartition(".")
+        return {
+            "model": model,
+            "field": f"{method}() call",
+            "expected": "no exception",
+            "got": f"{type(exc).__name__}: {exc}",
+        }
+    return None
 
 
 def _check_tensor(
@@ -183,37 +246,82 @@ def _grad_enabled(grad: bool | None, *inputs: Tensor) -> bool:
     return grad
 
 
+#: The attributes a model must have; everything else of the interface has a default.
+REQUIRED_ATTRIBUTES: tuple[str, ...] = (
+    "num_context", "num_future", "action_dim", "image_size", "predict"
+)
+
+
+def _declared_keywords(fn: Callable[..., Any]) -> frozenset[str]:
+    """Which of ``generator``/``grad`` ``fn`` accepts (all, if it takes ``**kwargs``)."""
+    try:
+        params = inspect.signature(fn).parameters.values()
+    except (TypeError, ValueError):  # no signature (a builtin): pass only the required ones
+        return frozenset()
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params):
+        return frozenset({"generator", "grad"})
+    names = {
+        p.name
+        for p in params
+        if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    }
+    return frozenset(names & {"generator", "grad"})
+
+
 class CheckedModel:
     """Wraps any :class:`VideoPredictionModel` so that every ``predict`` call is checked.
 
-    For implementations that do not derive from :class:`VideoPredictor` (the simulator
-    oracle, ensembles); a :class:`VideoPredictor` already checks its calls. Every other
-    attribute is forwarded to the wrapped model.
+    For implementations that do not derive from :class:`VideoPredictor` (plugins, the
+    simulator oracle, ensembles); a :class:`VideoPredictor` already checks its calls. Use
+    :func:`checked`, which wraps once. The wrapper also completes the interface:
+
+    - ``name`` defaults to the class name, ``max_batch_size`` to
+      :data:`DEFAULT_MAX_BATCH_SIZE`;
+    - ``generator`` and ``grad`` are passed only to a ``predict`` that declares them (or
+      ``**kwargs``), decided once here from its signature; for one without ``grad``,
+      ``grad=False`` runs it under ``torch.no_grad()`` and ``grad=True`` under
+      ``torch.enable_grad()``.
+
+    Every other attribute is read from and written to the wrapped model.
+
+    Raises:
+        TypeError: if the model lacks one of :data:`REQUIRED_ATTRIBUTES`.
     """
 
+    _OWN = frozenset({"model", "_keywords"})
+
     def __init__(self, model: VideoPredictionModel):
-        missing = [
-            attr
-            for attr in (
-                "name",
-                "num_context",
-                "num_future",
-                "action_dim",
-                "image_size",
-                "max_batch_size",
-                "predict",
-            )
-            if not hasattr(model, attr)
-        ]
+        missing = [attr for attr in REQUIRED_ATTRIBUTES if not hasattr(model, attr)]
         if missing:
             raise TypeError(
                 f"{type(model).__name__} does not implement VideoPredictionModel: missing "
-                f"{', '.join(missing)}"
+                f"{', '.join(missing)} (docs/benchmark.md, \"Plugins\")"
             )
-        self.model = model
+        object.__setattr__(self, "model", model)
+        object.__setattr__(self, "_keywords", _declared_keywords(model.predict))
 
     def __getattr__(self, attr: str) -> Any:
         return getattr(self.__dict__["model"], attr)
+
+    def __setattr__(self, attr: str, value: Any) -> None:
+        if attr in self._OWN:
+            object.__setattr__(self, attr, value)
+        else:
+            setattr(self.model, attr, value)
+
+    @property
+    def name(self) -> str:
+        name = getattr(self.model, "name", None)
+        return name if isinstance(name, str) and name else type(self.model).__name__
+
+    @property
+    def max_batch_size(self) -> int:
+        size = getattr(self.model, "max_batch_size", None)
+        return DEFAULT_MAX_BATCH_SIZE if size is None else int(size)
+
+    @max_batch_size.setter
+    def max_batch_size(self, value: int) -> None:
+        self.model.max_batch_size = value
 
     def predict(
         self,
@@ -223,10 +331,70 @@ class CheckedModel:
         generator: torch.Generator | None = None,
         grad: bool | None = None,
     ) -> Tensor:
-        check_inputs(self.model, context_frames, actions)
-        out = self.model.predict(context_frames, actions, generator=generator, grad=grad)
-        check_output(self.model, out, context_frames.shape[0])
+        check_inputs(self, context_frames, actions)
+        kwargs: dict[str, Any] = {}
+        if "generator" in self._keywords:
+            kwargs["generator"] = generator
+        if "grad" in self._keywords:
+            kwargs["grad"] = grad
+            mode: contextlib.AbstractContextManager = contextlib.nullcontext()
+        elif grad is None:
+            mode = contextlib.nullcontext()
+        else:
+            mode = torch.enable_grad() if grad else torch.no_grad()
+        try:
+            with mode:
+                out = self.model.predict(context_frames, actions, **kwargs)
+        except Exception as exc:
+            _mark_model_call(exc, f"{self.name}.predict")
+            raise
+        check_output(self, out, context_frames.shape[0])
         return out
+
+
+def checked(model: Any) -> VideoPredictionModel:
+    """``model`` with checked ``predict`` calls and the interface's defaults: a
+    :class:`VideoPredictor` or :class:`CheckedModel` as it is, anything else wrapped in a
+    :class:`CheckedModel` (once).
+
+    Raises:
+        TypeError: if the model lacks one of :data:`REQUIRED_ATTRIBUTES`.
+    """
+    if isinstance(model, (VideoPredictor, CheckedModel)):
+        return model
+    return CheckedModel(model)
+
+
+def unwrap(model: Any) -> Any:
+    """The model inside a :class:`CheckedModel` (anything else as it is)."""
+    return model.model if isinstance(model, CheckedModel) else model
+
+
+def gradient_problem(model: VideoPredictionModel, device: str | torch.device = "cpu") -> str | None:
+    """Why ``model`` cannot give gradients of its predictions with respect to the actions,
+    or ``None`` if it can (what the gradient-based planners ``cem_gd`` and ``lbfgs`` need).
+
+    A model may say so itself with ``differentiable = False``; otherwise one batch-1
+    ``predict`` call with ``grad=True`` on grey frames and zero actions (on ``device``) must
+    return frames whose gradient reaches the actions.
+    """
+    model = checked(model)
+    if getattr(model, "differentiable", None) is False:
+        return "declares differentiable = False"
+    size, steps = model.image_size, model.num_context + model.num_future - 1
+    frames = torch.full((1, model.num_context, 3, size, size), 0.5, device=device)
+    actions = torch.zeros(1, steps, model.action_dim, device=device, requires_grad=True)
+    try:
+        with torch.enable_grad():
+            out = model.predict(frames, actions, grad=True)
+            if not out.requires_grad:
+                return "returned predictions without a gradient (grad_fn is None)"
+            (grad,) = torch.autograd.grad(out.float().sum(), actions, allow_unused=True)
+    except Exception as exc:
+        return f"raised {type(exc).__name__}: {exc} when asked for gradients"
+    if grad is None:
+        return "returned predictions that do not depend on the actions"
+    return None
 
 
 def predict_in_chunks(
@@ -255,7 +423,7 @@ def predict_in_chunks(
     Returns:
         ``(N, num_future, 3, H, W)`` predicted frames.
     """
-    size = chunk_size or model.max_batch_size
+    size = chunk_size or getattr(model, "max_batch_size", None) or DEFAULT_MAX_BATCH_SIZE
     if size <= 0:
         raise ValueError(f"chunk size must be > 0, got {size}")
     n = context_frames.shape[0]
@@ -274,6 +442,7 @@ def predict_in_chunks(
 
 
 def _model_device(model: Any) -> torch.device:
+    model = unwrap(model)
     if isinstance(model, nn.Module):
         for p in model.parameters():
             return p.device
@@ -411,8 +580,12 @@ class VideoPredictor(nn.Module, abc.ABC):
             if _grad_enabled(grad, context_frames, actions)
             else (torch.no_grad())
         )
-        with grad_mode, self._eval_mode(), self._autocast(device, self.inference_autocast):
-            out = self._predict(frames, acts, generator)  # (B, T, 3, H, W)
+        try:
+            with grad_mode, self._eval_mode(), self._autocast(device, self.inference_autocast):
+                out = self._predict(frames, acts, generator)  # (B, T, 3, H, W)
+        except Exception as exc:
+            _mark_model_call(exc, f"{self.name}.predict")
+            raise
         out = out.float().to(context_frames.device)
         check_output(self, out, context_frames.shape[0])
         return out
