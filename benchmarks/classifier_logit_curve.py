@@ -23,7 +23,14 @@ import torch
 from PIL import Image, ImageDraw
 
 from vp2.benchmark.charts import PALETTE
-from vp2.benchmark.classifiers import ASSETS_DIR, CLASSIFIER_TASKS, load_classifier, to_tensor
+from vp2.benchmark.classifiers import (
+    ASSETS_DIR,
+    CLASSIFIER_TASKS,
+    load_classifier,
+    shipped_path,
+    short_task,
+    to_tensor,
+)
 from vp2.data.storage import dataset_index
 
 COLUMNS = (15, 10, 8, 6, 4, 3, 2, 1, 0, -2, -5)
@@ -31,7 +38,7 @@ COLUMNS = (15, 10, 8, 6, 4, 3, 2, 1, 0, -2, -5)
 
 def logit_curves(data: Path, classifiers: Path, task: str, max_d: int) -> tuple[dict, list]:
     """Mean logit per steps-to-success ``d`` (``-max_d..max_d``) and the never-successful logits."""
-    model = load_classifier(classifiers / f"{task}.pt")
+    model = load_classifier(shipped_path(task, classifiers))
     records = [r for r in dataset_index(data) if r.task == f"robodesk/{task}" and r.split == "valid"]
     by_d: dict[int, list[float]] = defaultdict(list)
     never: list[float] = []
@@ -97,7 +104,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True, help="rendered RoboDesk dataset")
     parser.add_argument("--classifiers", type=Path, default=ASSETS_DIR)
-    parser.add_argument("--tasks", nargs="+", default=list(CLASSIFIER_TASKS))
+    parser.add_argument("--tasks", nargs="+", default=[short_task(t) for t in CLASSIFIER_TASKS])
     parser.add_argument("--max-d", type=int, default=15)
     parser.add_argument("--out", type=Path, default=Path("outputs/classifier-logit-curve.png"))
     args = parser.parse_args()
