@@ -3,9 +3,9 @@
     MUJOCO_GL=egl OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_oracle_render.py \
         [--cases robodesk/push_red:50 robodesk/push_red:200 tabletop/push_large_cube:200]
 
-"Before" is the render path of 2026-11-23 (commit 131e30f): the original meshes with that day's
-settings (RoboDesk: 3 shadow lights at 512², no MSAA, no reflection; tabletop: no shadows, no
-MSAA, no reflection, no skybox). "After" is today's ``RENDER_SPEC`` with its simplified
+"Before" is the render path of 2026-11-23 (commit 131e30f): the original meshes and
+tessellation with that day's quality settings (``bench_render_floor.previous_spec``: RoboDesk 3
+shadow lights at 512², no MSAA, no reflection; tabletop no shadows, no MSAA, no reflection). "After" is today's ``RENDER_SPEC`` with its simplified
 render-only model. Both run in this process with one oracle worker on the same environment
 (only its renderer is swapped), the same MPPI seed and the same observation, alternating
 before/after per case so that machine load hits both; physics is identical.
@@ -18,35 +18,22 @@ sends back).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import pickle
 import time
 
 import numpy as np
 
+from bench_render_floor import previous_spec  # the settings of 2026-11-23, one definition
 from vp2.benchmark.agent import Observation, PlannerConfig, PlanningAgent
 from vp2.envs import make_env
 from vp2.envs.rendering import Renderer, RenderSpec
 from vp2.models.reference import _PROCESS_ENVS, SimulatorModel
 
-#: The render settings of 2026-11-23, original meshes.
-BEFORE = {
-    "robodesk": dict(shadow_size=512, shadow_lights=(0, 1, 2), multisamples=0, reflection=False,
-                     skybox=True),
-    "tabletop": dict(shadow_size=256, shadow_lights=(), multisamples=0, reflection=False,
-                     skybox=False),
-}
-ORIGINAL_MESHES = dict(mesh_reduction=0.0, plane_spacing=None, numslices=None, numstacks=None,
-                       numquads=None)
-
 
 def before_renderer(env) -> Renderer:
-    """A renderer of ``env``'s physics model with the settings of 2026-11-23."""
-    kind = env.name.split("/")[0]
-    spec: RenderSpec = env_render_spec(env)
-    old = dataclasses.replace(spec, **BEFORE[kind], **ORIGINAL_MESHES)
-    return Renderer(physics_model(env), old)
+    """A renderer of ``env``'s physics model with the settings of 2026-11-23 (original meshes)."""
+    return Renderer(physics_model(env), previous_spec(env_render_spec(env)))
 
 
 def env_render_spec(env) -> RenderSpec:
