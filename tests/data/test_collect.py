@@ -139,3 +139,17 @@ def test_states_only_collection_then_render_equals_a_rendered_collection(tiny_da
     strict = load_frames(tiny_dataset, "push_red", "train", label="success")
     assert np.all(dense.labels[strict.labels])  # success implies the dense label here
     assert dense.positives > strict.positives
+
+
+def test_a_dataset_from_before_the_render_setting_still_resumes(tiny_dataset, tmp_path):
+    import json
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(tiny_dataset, old)
+    manifest = json.loads((old / storage.MANIFEST).read_text())
+    del manifest["config"]["render"]  # written before states-only collection existed
+    (old / storage.MANIFEST).write_text(json.dumps(manifest))
+    assert collect(TINY, old, workers=1, progress=False) == old
+    with pytest.raises(FileExistsError, match="render: existing True vs requested False"):
+        collect(CollectionConfig(**{**TINY.__dict__, "render": False}), old, workers=1, progress=False)

@@ -204,6 +204,8 @@ def _check_existing(root: Path, config: CollectionConfig) -> dict[str, Any] | No
             )
         return None
     manifest = storage.load_manifest(root)
+    # Datasets collected before `render` existed stored images.
+    manifest["config"] = {"render": True, **manifest["config"]}
     if manifest["config"] != config.to_json():
         diffs = {
             k: (manifest["config"].get(k), v)
