@@ -107,7 +107,10 @@ def rd_package() -> Callable[[], None]:
     return call
 
 
-def _render_call(env, states: list[np.ndarray], renderer: Renderer | None) -> Callable[[], None]:
+def _render_call(
+    env, states: list[np.ndarray], renderer: Renderer | None, render: bool = True
+) -> Callable[[], None]:
+    """Loads the next state and renders it (``render=False``: only loads it)."""
     i = iter(range(10**9))
     data = env.data if isinstance(env, robodesk.RoboDeskEnv) else env._data
     model = env.model if isinstance(env, robodesk.RoboDeskEnv) else env._model
@@ -116,6 +119,8 @@ def _render_call(env, states: list[np.ndarray], renderer: Renderer | None) -> Ca
         env.reset_to(states[next(i) % len(states)])
         mujoco.mj_kinematics(model, data)
         mujoco.mj_camlight(model, data)
+        if not render:
+            return
         if renderer is None:
             env.render(64)
         else:
@@ -139,15 +144,7 @@ def rd_render_old() -> Callable[[], None]:
 def rd_render_reset_only() -> Callable[[], None]:
     """The state loading that the render variants include (subtracted in the table)."""
     env = robodesk.RoboDeskEnv("push_red", seed=0, observation_size=None)
-    states = _robodesk_states(10)
-    i = iter(range(10**9))
-
-    def call() -> None:
-        env.reset_to(states[next(i) % len(states)])
-        mujoco.mj_kinematics(env.model, env.data)
-        mujoco.mj_camlight(env.model, env.data)
-
-    return call
+    return _render_call(env, _robodesk_states(10), None, render=False)
 
 
 def tt_render_new() -> Callable[[], None]:
