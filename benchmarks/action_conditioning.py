@@ -28,7 +28,7 @@ import math
 import numpy as np
 import torch
 
-from vp2.benchmark.plugins import build_model
+from vp2.benchmark.model_spec import resolve_model
 from vp2.data.loader import ClipDataset
 
 
@@ -95,7 +95,7 @@ def main() -> None:
     frames = torch.stack([it["frames"] for it in items])
     actions = torch.stack([it["actions"] for it in items]).float()
     env = "tabletop" if actions.shape[-1] == 4 else "robodesk"
-    model = build_model(args.model, {}, env=env, action_dim=actions.shape[-1], device="cpu")
+    model = resolve_model(args.model, {}, env=env, action_dim=actions.shape[-1], device="cpu")
     with torch.no_grad():
         r = evaluate(model, frames, actions, args.samples)
     overall = ratio_statistics(r["true"], r["shuffled"])

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import torch
 
-from vp2.benchmark.classifiers import (
+from vp2.classifiers import (
     ASSETS_DIR,
     CLASSIFIER_TASKS,
     METRICS_FILE,

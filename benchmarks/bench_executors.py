@@ -63,7 +63,7 @@ def bench_collect(n: int, repeats: int) -> dict[int, float]:
 
 
 def bench_oracle(instances: int, seeds: int, samples: int, repeats: int) -> dict[int, float]:
-    from vp2.benchmark.runner import RunConfig, run_benchmark
+    from vp2.benchmark import RunConfig, run_benchmark
 
     rates: dict[int, list[float]] = {1: [], 2: []}
     for _ in range(repeats):

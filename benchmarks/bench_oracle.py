@@ -24,9 +24,9 @@ import time
 
 import numpy as np
 
-from vp2.benchmark.agent import Observation, PlannerConfig, PlanningAgent
 from vp2.envs import make_env
-from vp2.models.reference import SimulatorModel
+from vp2.models.simulator import SimulatorModel
+from vp2.planning import Observation, PlannerConfig, PlanningAgent
 
 SPEC_SAMPLES = 200
 

@@ -25,10 +25,10 @@ import time
 import numpy as np
 
 from bench_render_floor import previous_spec  # the settings of 2026-11-23, one definition
-from vp2.benchmark.agent import Observation, PlannerConfig, PlanningAgent
 from vp2.envs import make_env
 from vp2.envs.rendering import Renderer, RenderSpec
-from vp2.models.reference import _PROCESS_ENVS, SimulatorModel
+from vp2.models.simulator import _PROCESS_ENVS, SimulatorModel
+from vp2.planning import Observation, PlannerConfig, PlanningAgent
 
 
 def before_renderer(env) -> Renderer:
@@ -91,7 +91,8 @@ def main() -> None:
         obs, goal = observation(probe, args.seed)
         probe.close()
         model = SimulatorModel(action_dim=probe.action_dim, num_workers=1)
-        env = _PROCESS_ENVS.get(obs.env_meta)  # the oracle's own environment in this process
+        # The oracle's own environment in this process.
+        env = _PROCESS_ENVS.get(obs.env_meta, observation_size=None)
         env.render(64)
         after, before = env._renderer, before_renderer(env)
         times = {}

@@ -39,7 +39,7 @@ from vp2.planning import (
     WeightedCost,
     pixel_sse,
 )
-from vp2.planning.samplers import DEFAULT_SIGMA
+from vp2.spec import SIGMA
 
 HORIZON, ACTION_DIM, FRAMES, SIDE = 10, 5, 10, 64
 
@@ -107,7 +107,7 @@ def bench_optimizers(
     repeats: int, device: torch.device
 ) -> list[tuple[str, list[float], list[float]]]:
     """``(name, step times, objective-only times)`` per optimizer configuration."""
-    sigma = DEFAULT_SIGMA["robodesk"]
+    sigma = SIGMA["robodesk"]
     configs = (
         ("MPPI 200 x 10 x 5, 1 iteration", MPPI(sigma, num_samples=200), 200, 1),
         ("MPPI 800 x 10 x 5, 1 iteration", MPPI(sigma, num_samples=800), 800, 1),

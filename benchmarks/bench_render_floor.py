@@ -167,7 +167,8 @@ def tt_ours() -> Callable[[], None]:
 
 
 def tt_robosuite() -> Callable[[], None]:
-    from vp2.envs._tabletop_sim import LeanStepper, TabletopWorld
+    from vp2.envs._tabletop_stepper import LeanStepper
+    from vp2.envs._tabletop_world import TabletopWorld
 
     ours = tabletop.TabletopEnv("push_large_cube", seed=0, observation_size=None)
     ours.reset(seed=7)

@@ -48,7 +48,8 @@ import numpy as np  # noqa: E402
 
 from vp2.data.policies.base import NoisyPolicy  # noqa: E402
 from vp2.data.policies.tabletop import make_tabletop_policy  # noqa: E402
-from vp2.envs._tabletop_sim import LeanStepper, TabletopWorld  # noqa: E402
+from vp2.envs._tabletop_stepper import LeanStepper  # noqa: E402
+from vp2.envs._tabletop_world import TabletopWorld  # noqa: E402
 from vp2.envs.rendering import Renderer, mean_abs_error  # noqa: E402
 from vp2.envs.tabletop import OBJECT_NAMES, RENDER_SPEC, TabletopEnv  # noqa: E402
 

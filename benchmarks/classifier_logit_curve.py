@@ -22,8 +22,7 @@ import numpy as np
 import torch
 from PIL import Image, ImageDraw
 
-from vp2.benchmark.charts import PALETTE
-from vp2.benchmark.classifiers import (
+from vp2.classifiers import (
     ASSETS_DIR,
     CLASSIFIER_TASKS,
     load_classifier,
@@ -32,6 +31,7 @@ from vp2.benchmark.classifiers import (
     to_tensor,
 )
 from vp2.data.storage import dataset_index
+from vp2.report.charts import PALETTE
 
 COLUMNS = (15, 10, 8, 6, 4, 3, 2, 1, 0, -2, -5)
 

@@ -17,17 +17,13 @@ import argparse
 import numpy as np
 import torch
 
-from vp2.benchmark.agent import (
-    CLASSIFIERS,
-    PlannerConfig,
-    build_cost,
-    frames_to_tensor,
-    planner_settings,
-)
+from vp2.classifiers.registry import CLASSIFIERS
 from vp2.data.suite import TaskSuite
-from vp2.models.reference import SimulatorModel
-from vp2.planning import DEFAULT_SIGMA
+from vp2.models.simulator import SimulatorModel
+from vp2.planning.agent import frames_to_tensor
+from vp2.planning.planner import PlannerConfig, build_cost, planner_settings
 from vp2.planning.samplers import CorrelatedNoiseSampler
+from vp2.spec import SIGMA
 
 
 def main() -> None:
@@ -43,7 +39,7 @@ def main() -> None:
     settings = planner_settings(args.task, PlannerConfig(num_samples=args.num_samples))
     action_dim = 5 if env_name == "robodesk" else 4
     candidates = CorrelatedNoiseSampler().sample(
-        torch.zeros(10, action_dim), DEFAULT_SIGMA[env_name], args.num_samples,
+        torch.zeros(10, action_dim), SIGMA[env_name], args.num_samples,
         torch.Generator().manual_seed(0))
     model = SimulatorModel(action_dim)
     model.set_simulator_state(inst.env_meta, inst.init_state)

@@ -33,13 +33,14 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from vp2.benchmark.agent import Observation, PlannerConfig, build_optimizer  # noqa: E402
 from vp2.benchmark.trial import ControlTrial  # noqa: E402
 from vp2.data.suite import TaskInstance, TaskSuite  # noqa: E402
 from vp2.envs import make_env_from_metadata, split_name  # noqa: E402
 from vp2.envs.robodesk import OBJECTS as ROBODESK_OBJECTS  # noqa: E402
 from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv  # noqa: E402
+from vp2.planning.agent import Observation  # noqa: E402
 from vp2.planning.optimizers import shift_plan  # noqa: E402
+from vp2.planning.planner import PlannerConfig, build_optimizer  # noqa: E402
 
 HORIZON = 10
 
@@ -47,7 +48,7 @@ HORIZON = 10
 class StateCostAgent:
     """MPPI on a copy of the simulator, scoring the object (and hand) positions its actions reach.
 
-    An :class:`vp2.benchmark.agent.Agent` for one instance (the goal comes from its state).
+    An :class:`vp2.planning.agent.Agent` for one instance (the goal comes from its state).
     """
 
     name = "state_cost_mppi"

@@ -24,7 +24,7 @@ import time
 import numpy as np
 import torch
 
-from vp2.benchmark.plugins import build_model
+from vp2.benchmark.model_spec import resolve_model
 from vp2.data.loader import ClipDataset
 from vp2.metrics.image import psnr, ssim
 
@@ -70,7 +70,7 @@ def main() -> None:
     env = "tabletop" if actions.shape[-1] == 4 else "robodesk"
     def predict(value: int) -> tuple[torch.Tensor, float]:
         # The checkpoint loaded with an inference override, as `vp2 run --model-arg` does.
-        model = build_model(
+        model = resolve_model(
             args.model, {field: value}, env=env, action_dim=actions.shape[-1], device="cpu"
         )
         outs, t0 = [], time.perf_counter()

@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 
 from vp2.data.suite import TRIAL_FREE_ACTIONS, TaskSuite  # noqa: E402
 from vp2.envs import split_name  # noqa: E402
-from vp2.envs._tabletop_sim import OSC_OUTPUT_MAX  # noqa: E402
+from vp2.envs._tabletop_world import OSC_OUTPUT_MAX  # noqa: E402
 from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv  # noqa: E402
 
 

@@ -55,7 +55,7 @@ from PIL import Image  # noqa: E402
 from vp2.data.policies.tabletop import TARGET_REGION  # noqa: E402
 from vp2.data.suite import TaskSuite  # noqa: E402
 from vp2.envs import ENV_TASKS  # noqa: E402
-from vp2.envs._tabletop_sim import (  # noqa: E402
+from vp2.envs._tabletop_world import (  # noqa: E402
     CAMERA_FOVY,
     CAMERA_LOOKAT,
     CAMERA_NAME,

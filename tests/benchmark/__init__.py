@@ -183,7 +183,7 @@ def broken_factory(action_dim: int) -> Any:
 
 def repeat_factory(action_dim: int, image_size: int = 64) -> Any:
     """A plain ``module:factory`` plugin."""
-    from vp2.models.reference import RepeatLastFrame
+    from vp2.models.baselines import RepeatLastFrame
 
     return RepeatLastFrame(action_dim=action_dim, image_size=image_size)
 

@@ -17,14 +17,11 @@ import imageio.v3 as iio
 import pytest
 
 from tests.benchmark import tiny_suite_path
+from vp2.benchmark.config import RunConfig
+from vp2.benchmark.model_spec import parse_model_args
 from vp2.benchmark.results import read_trials, trial_key
-from vp2.benchmark.runner import (
-    ModelFailure,
-    RunConfig,
-    parse_model_args,
-    read_config,
-    run_benchmark,
-)
+from vp2.benchmark.run_dir import read_config
+from vp2.benchmark.runner import ModelFailure, run_benchmark
 
 REPO = Path(__file__).resolve().parents[2]
 STEPS = 3
@@ -101,7 +98,7 @@ def test_resume_after_sigkill_runs_every_trial_exactly_once(reference, tmp_path)
     trials = Path(cfg.out) / "trials.jsonl"
     script = (
         "import json, sys\n"
-        "from vp2.benchmark.runner import RunConfig, run_benchmark\n"
+        "from vp2.benchmark import RunConfig, run_benchmark\n"
         "run_benchmark(RunConfig.from_dict(json.loads(sys.argv[1])))\n"
     )
     env = {**os.environ, "PYTHONPATH": f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}

@@ -14,19 +14,18 @@ import yaml
 from tests.benchmark import tiny_suite_path
 from vp2 import cli
 from vp2.benchmark.main_job import MainJobConfig, run_main_job
-from vp2.benchmark.report import write_report
 from vp2.benchmark.results import format_summary, summarize
+from vp2.benchmark.ship_oracle import build_oracle_asset, write_oracle_asset
 from vp2.benchmark.shipped_oracle import (
     ASSET_FORMAT,
     ENV_VAR,
     NO_SHIPPED_ORACLE,
-    build_oracle_asset,
     default_asset_path,
     load_shipped_oracle,
     summarize_run,
-    write_oracle_asset,
 )
 from vp2.data.suite import SUITE_FORMAT, TaskSuite
+from vp2.report.page import write_report
 
 TASK = "tabletop/push_sphere"
 #: (instance, seed) -> success: per seed 1.0, 0.5, 0.5, so the rate is 2/3 (4 of 6).

@@ -113,7 +113,7 @@ def test_sigkill_half_way_then_resume(tmp_path):
 
 
 def test_states_only_collection_then_render_equals_a_rendered_collection(tiny_dataset, tmp_path):
-    from vp2.benchmark.classifiers import load_frames
+    from vp2.classifiers.data import load_frames
     from vp2.data.loader import ClipDataset
     from vp2.data.render import rerender
 

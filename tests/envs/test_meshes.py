@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from vp2.envs import meshes, robodesk
+from vp2.envs import _robodesk_model, meshes, robodesk
 from vp2.envs.rendering import Renderer, mean_abs_error
 
 
@@ -35,7 +35,7 @@ def _posed(env):
 
 
 def test_physics_model_untouched(desk_states):
-    fresh = mujoco.MjModel.from_xml_path(os.fspath(robodesk.asset_path()))
+    fresh = mujoco.MjModel.from_xml_path(os.fspath(_robodesk_model.asset_path()))
     env = robodesk.RoboDeskEnv("push_red", seed=0, observation_size=64)
     blind = robodesk.RoboDeskEnv("push_red", seed=0, observation_size=None)
     env.reset_to(desk_states[0])
@@ -59,10 +59,10 @@ def test_physics_model_untouched(desk_states):
 def test_render_path_equals_direct_render(desk_states):
     """The unsimplified render model posed on a private MjData gives the same image."""
     env = robodesk.RoboDeskEnv("push_red", seed=0, observation_size=None)
-    same = meshes.simplified_render_model(robodesk.asset_path(), target_reduction=0.0)
+    same = meshes.simplified_render_model(_robodesk_model.asset_path(), target_reduction=0.0)
     assert (same.nbody, same.ngeom, same.nmesh) == (env.model.nbody, env.model.ngeom, env.model.nmesh)
-    via_copy = Renderer(env.model, robodesk.RENDER_SPEC, render_model=same)
-    direct = Renderer(env.model, robodesk.RENDER_SPEC)
+    via_copy = Renderer(env.model, _robodesk_model.RENDER_SPEC, render_model=same)
+    direct = Renderer(env.model, _robodesk_model.RENDER_SPEC)
     for state in desk_states:
         env.reset_to(state)
         data = _posed(env)
@@ -75,14 +75,14 @@ def test_render_model_structure_is_checked():
     env = robodesk.RoboDeskEnv("push_red", seed=0, observation_size=None)
     other = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom size='1'/></worldbody></mujoco>")
     with pytest.raises(ValueError, match="render model does not match"):
-        Renderer(env.model, robodesk.RENDER_SPEC, render_model=other)
+        Renderer(env.model, _robodesk_model.RENDER_SPEC, render_model=other)
 
 
 def test_simplified_geometry_stays_in_place():
     """Re-centred meshes compile to other geom frames; posed, they cover the same space."""
-    model = robodesk.load_model()
-    simple = robodesk.load_render_model()
-    ids = meshes.visual_only_meshes(model, body_prefixes=robodesk.RENDER_MESH_BODIES)
+    model = _robodesk_model.load_model()
+    simple = _robodesk_model.load_render_model()
+    ids = meshes.visual_only_meshes(model, body_prefixes=_robodesk_model.RENDER_MESH_BODIES)
     assert len(ids) == 9  # the Panda's visual meshes (link0-7, hand; the fingers are small)
     assert sum(model.mesh_facenum[ids]) > 130_000
     d0, d1 = mujoco.MjData(model), mujoco.MjData(simple)
@@ -101,7 +101,7 @@ def test_simplified_geometry_stays_in_place():
 
 def test_fidelity_against_full_quality_original_meshes(desk_states):
     env = robodesk.RoboDeskEnv("push_red", seed=0, observation_size=None)
-    full = Renderer(env.model, robodesk.RENDER_SPEC.full_quality())
+    full = Renderer(env.model, _robodesk_model.RENDER_SPEC.full_quality())
     for state in desk_states:
         env.reset_to(state)
         image = env.render(64)
@@ -112,7 +112,7 @@ def test_fidelity_against_full_quality_original_meshes(desk_states):
 
 
 def _one_mesh():
-    model = robodesk.load_model()
+    model = _robodesk_model.load_model()
     return meshes._source_mesh(model, meshes.visual_only_meshes(model, body_prefixes=('panda0_',))[0])
 
 
@@ -184,4 +184,4 @@ def test_tabletop_render_model():
 
 def test_bad_reduction():
     with pytest.raises(ValueError, match="target_reduction"):
-        meshes.simplified_render_model(robodesk.asset_path(), target_reduction=1.0)
+        meshes.simplified_render_model(_robodesk_model.asset_path(), target_reduction=1.0)

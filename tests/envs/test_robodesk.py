@@ -15,15 +15,9 @@ import pytest
 
 from vp2.envs import make_env_from_metadata
 from vp2.envs._ik import SitePositionIK
+from vp2.envs._robodesk_model import RENDER_SPEC, load_model
 from vp2.envs.rendering import Renderer, mean_abs_error
-from vp2.envs.robodesk import (
-    IK_JOINTS,
-    OBJECTS,
-    RENDER_SPEC,
-    TASKS,
-    RoboDeskEnv,
-    load_model,
-)
+from vp2.envs.robodesk import IK_JOINTS, OBJECTS, TASKS, RoboDeskEnv
 
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 
@@ -297,7 +291,7 @@ def test_ik_matches_dm_control_bit_for_bit():
 
 
 def _desk_xml():
-    from vp2.envs.robodesk import asset_path
+    from vp2.envs._robodesk_model import asset_path
 
     return asset_path()
 

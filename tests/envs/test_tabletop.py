@@ -15,7 +15,8 @@ import pytest
 
 from vp2.data.policies.tabletop import TARGET_REGION
 from vp2.envs import make_env_from_metadata
-from vp2.envs._tabletop_sim import TABLE_TOP_Z, LeanStepper, TabletopWorld
+from vp2.envs._tabletop_stepper import LeanStepper
+from vp2.envs._tabletop_world import TABLE_TOP_Z, TabletopWorld
 from vp2.envs.tabletop import (
     OBJECT_NAMES,
     PLACEMENT_REGION,
@@ -264,7 +265,7 @@ def test_regions_lie_on_the_table(env):
 
 def test_import_does_not_log_the_mink_warning():
     out = subprocess.run(
-        [sys.executable, "-c", "import vp2.envs._tabletop_sim"],
+        [sys.executable, "-c", "import vp2.envs._tabletop_world, vp2.envs._tabletop_stepper"],
         env=dict(os.environ),
         capture_output=True,
         text=True,

@@ -15,7 +15,6 @@ from vp2.models import (
     FitVidConfig,
     ModelContractError,
     TrainingDefaults,
-    VideoPredictionModel,
     VideoPredictor,
     all_variants,
     build_model,
@@ -27,7 +26,7 @@ from vp2.models import (
     parse_overrides,
     predict_in_chunks,
 )
-from vp2.models.base import gradient_problem, model_failure
+from vp2.models.contract import REQUIRED_ATTRIBUTES, gradient_problem, model_failure
 from vp2.models.registry import MODELS
 
 # The big variants cost seconds to minutes per forward on a CPU (MCVD default/small sample
@@ -102,7 +101,8 @@ def test_parameter_counts_match_reference(name, preset):
 @pytest.mark.parametrize(("name", "preset"), VARIANTS)
 def test_predict_contract(name, preset):
     model = build_model(name, preset, action_dim=4)
-    assert isinstance(model, VideoPredictionModel)
+    assert model.name == name and isinstance(model, MODELS[name].model_class)
+    assert checked(model) is model  # a VideoPredictor checks its own calls: never wrapped
     assert (model.num_context, model.num_future, model.action_dim, model.image_size) == (
         2,
         10,
@@ -212,7 +212,7 @@ class _FakeModel:
 def test_checked_model_validates_inputs_and_outputs():
     frames, actions = _inputs(2, size=32)
     good = CheckedModel(_FakeModel())
-    assert isinstance(good, VideoPredictionModel) and good.image_size == 32
+    assert (good.name, good.max_batch_size, good.image_size) == ("fake", 3, 32)
     assert good.predict(frames, actions).shape == (2, 10, 3, 32, 32)
     with pytest.raises(ValueError, match="fake.predict: actions: expected"):
         good.predict(frames, actions * 2)
@@ -231,6 +231,17 @@ def test_checked_model_validates_inputs_and_outputs():
         TypeError, match="object does not implement VideoPredictionModel: missing num_context"
     ):
         CheckedModel(object())
+
+
+@pytest.mark.parametrize("missing", REQUIRED_ATTRIBUTES)
+def test_checked_names_a_missing_attribute(missing):
+    attrs = {"num_context": 2, "num_future": 10, "action_dim": 4, "image_size": 32}
+    attrs["predict"] = lambda self, context, actions: context[:, -1:].expand(-1, 10, -1, -1, -1)
+    del attrs[missing]
+    incomplete = type("Incomplete", (), attrs)()
+    with pytest.raises(TypeError, match=f"Incomplete does not implement VideoPredictionModel: "
+                       f"missing {missing} "):
+        checked(incomplete)
 
 
 class _Minimal:
@@ -283,7 +294,7 @@ def test_a_minimal_model_gets_the_interface_defaults():
 
 
 def test_gradient_problem_names_why():
-    from vp2.models.reference import RepeatLastFrame
+    from vp2.models.baselines import RepeatLastFrame
 
     assert "without a gradient" in gradient_problem(RepeatLastFrame(action_dim=4, image_size=32))
 
@@ -326,9 +337,7 @@ def test_subclass_contract_is_checked_at_definition():
             def _predict(self, context_frames, actions, generator):
                 return context_frames
 
-            def compute_loss(
-                self, frames, actions, generator, perceptual=None, perceptual_weight=0.0
-            ):
+            def _compute_loss(self, frames, actions, generator, frame_loss):
                 raise NotImplementedError
 
     @dataclasses.dataclass
@@ -345,9 +354,7 @@ def test_subclass_contract_is_checked_at_definition():
             def _predict(self, context_frames, actions, generator):
                 return context_frames
 
-            def compute_loss(
-                self, frames, actions, generator, perceptual=None, perceptual_weight=0.0
-            ):
+            def _compute_loss(self, frames, actions, generator, frame_loss):
                 raise NotImplementedError
 
 
@@ -364,7 +371,7 @@ def test_registry_presets_and_overrides():
         make_config("svg_prime", M=2)
     with pytest.raises(ValueError, match="beta='big'"):
         make_config("svg_prime", beta="big")
-    with pytest.raises(ValueError, match="expected key=value"):
+    with pytest.raises(ValueError, match="expected KEY=VALUE"):
         parse_overrides(["beta"])
     with pytest.raises(ValueError, match="multiple of 8"):
         make_config("svg_prime", image_size=36)
@@ -384,12 +391,12 @@ def test_parse_model_spec(tmp_path):
 
 
 def test_checkpoint_inference_overrides(tmp_path):
-    from vp2.benchmark.plugins import PluginError
-    from vp2.benchmark.plugins import build_model as build_spec
-    from vp2.training.checkpoint import save_checkpoint
+    from vp2.benchmark.model_spec import PluginError
+    from vp2.benchmark.model_spec import resolve_model as build_spec
+    from vp2.models.checkpoint import write_model_checkpoint
 
     model = build_model("mcvd", "tiny", seed=3)
-    path = save_checkpoint(
+    path = write_model_checkpoint(
         tmp_path / "step_00000001.pt",
         {"model": {"name": "mcvd", "config": model.config_dict(), "state_dict": model.state_dict()}},
     )

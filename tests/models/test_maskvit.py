@@ -6,7 +6,7 @@ import torch
 from tests.models.common import overfit_ratio
 from tests.models.synthetic import moving_square_batch, write_moving_square_dataset
 from vp2.models import MaskViT, MaskViTTokenizer, build_model, load_model, model_from_config
-from vp2.models.maskvit import WindowBlock
+from vp2.models.maskvit.transformer import WindowBlock
 
 SMALL = {"action_dim": 4, "image_size": 32}
 
@@ -167,9 +167,9 @@ def test_trains_with_a_trained_tokenizer_and_checkpoints_are_self_contained(tmp_
 
 def test_planning_trial_with_tiny_maskvit():
     from tests.benchmark import tiny_suite_path
-    from vp2.benchmark.agent import PlannerConfig, PlanningAgent
     from vp2.benchmark.trial import ControlTrial
     from vp2.data.suite import TaskSuite
+    from vp2.planning import PlannerConfig, PlanningAgent
 
     model = build_model("maskvit", "tiny", action_dim=4)
     instance = TaskSuite.load(tiny_suite_path()).get("tabletop/push_sphere", 1)

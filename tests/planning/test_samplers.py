@@ -6,11 +6,11 @@ import pytest
 import torch
 
 from vp2.planning.samplers import (
-    DEFAULT_SIGMA,
     CorrelatedNoiseSampler,
     GaussianSampler,
     correlated_noise_std,
 )
+from vp2.spec import SIGMA
 
 NUM = 20_000  # samples for the statistics: standard errors ~1/sqrt(NUM) = 0.007
 HORIZON = 10
@@ -79,7 +79,7 @@ def test_samples_are_clipped_to_the_action_box(sampler) -> None:
     mean = torch.full((HORIZON, 5), 0.9)
     mean[:, 1] = -0.9
     samples = sampler.sample(
-        mean, DEFAULT_SIGMA["robodesk"], 2_000, torch.Generator().manual_seed(2)
+        mean, SIGMA["robodesk"], 2_000, torch.Generator().manual_seed(2)
     )
     assert samples.min() >= -1.0 and samples.max() <= 1.0
     assert (samples[..., 0] == 1.0).any() and (samples[..., 1] == -1.0).any()  # clipping happened
@@ -89,7 +89,7 @@ def test_sampling_is_determined_by_the_generator() -> None:
     sampler = CorrelatedNoiseSampler()
     mean = torch.zeros(HORIZON, 4)
     draw = lambda seed: sampler.sample(  # noqa: E731
-        mean, DEFAULT_SIGMA["tabletop"], 16, torch.Generator().manual_seed(seed)
+        mean, SIGMA["tabletop"], 16, torch.Generator().manual_seed(seed)
     )
     assert torch.equal(draw(5), draw(5))
     assert not torch.equal(draw(5), draw(6))

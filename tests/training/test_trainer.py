@@ -9,7 +9,7 @@ import torch
 from PIL import Image
 
 from tests.models.synthetic import write_moving_square_dataset
-from vp2.models import VideoPredictionModel, load_model, load_model_spec
+from vp2.models import FitVid, load_model, load_model_spec
 from vp2.training import StepBatchSampler, TrainConfig, train
 
 # Tiny models so that a training step takes milliseconds on a CPU.
@@ -85,7 +85,11 @@ def test_train_writes_a_complete_run(dataset, tmp_path):
     assert payload["dataset"]["config"]["env"] == "synthetic"
 
     model = load_model(out, device="cpu")
-    assert isinstance(model, VideoPredictionModel) and not model.training
+    assert isinstance(model, FitVid) and not model.training
+    # The newest checkpoint's weights, exactly.
+    loaded = model.state_dict()
+    for key, value in payload["model"]["state_dict"].items():
+        torch.testing.assert_close(loaded[key], value, rtol=0, atol=0, msg=key)
     assert (model.name, model.action_dim, model.image_size) == ("fitvid", 4, 32)
     pred = model.predict(torch.rand(2, 2, 3, 32, 32), torch.zeros(2, 11, 4))
     assert pred.shape == (2, 10, 3, 32, 32)
@@ -180,7 +184,7 @@ def test_step_batch_sampler_is_a_function_of_seed_and_step():
 
 @pytest.mark.parametrize("half", [True, False])
 def test_exported_checkpoint_predicts_like_the_training_one(dataset, tmp_path, half):
-    from vp2.training.checkpoint import export_checkpoint
+    from vp2.training.export import export_checkpoint
 
     out = tmp_path / "run"
     train(_config(dataset, out, model="svg_prime", steps=2))

@@ -8,6 +8,7 @@ start is in one of two process groups, killed by id when the module's tests are 
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import secrets
@@ -24,11 +25,12 @@ import numpy as np
 import pytest
 
 from tests.benchmark import tiny_suite_path
+from vp2.benchmark.config import RunConfig
 from vp2.benchmark.results import read_trials, trial_key
-from vp2.benchmark.runner import RunConfig, run_benchmark
+from vp2.benchmark.runner import run_benchmark
 from vp2.data import storage
 from vp2.data.collect import CollectionConfig, collect
-from vp2.utils.executors import LocalExecutor, RayExecutor, WorkerLost, make_executor
+from vp2.utils.executors import LiveQueue, LocalExecutor, RayExecutor, WorkerLost, make_executor
 
 ray = pytest.importorskip("ray")
 
@@ -74,6 +76,24 @@ def test_local_executor_runs_the_initialiser_and_streams_every_item():
     with LocalExecutor(workers=1) as ex:
         out = dict(ex.imap_unordered(_square_plus_offset, range(6), _init, (10,)))
     assert out == {x: x * x + 10 for x in range(6)}
+
+
+def test_local_executor_charges_a_dead_worker_to_its_item_and_reruns_the_others():
+    """``on_lost="yield"``: the items in flight when a worker died are re-run alone; the one
+    that kills its worker alone is yielded with WorkerLost, and runs alone again when the
+    consumer puts it back into the live queue."""
+    added: collections.deque[int] = collections.deque()
+    lost, results = [], {}
+    with LocalExecutor(workers=2) as ex:
+        stream = ex.imap_unordered(_die_on_three, LiveQueue(range(6), added), on_lost="yield")
+        for item, result in stream:
+            if isinstance(result, WorkerLost):
+                lost.append(item)
+                if len(lost) == 1:
+                    added.append(item)  # a retry, as the benchmark runner's
+            else:
+                results[item] = result
+    assert lost == [3, 3] and results == {x: x for x in range(6) if x != 3}
 
 
 def test_make_executor_validates():

@@ -1,88 +1,61 @@
 """The benchmark: control trials with a model, the runner, and the results (SPEC §4).
 
-- :class:`PlanningAgent` (``agent.py``): visual foresight with a model, a cost and MPPI.
-- :class:`ControlTrial` (``trial.py``): one agent on one task instance for 15 steps.
-- :func:`run_benchmark` (``runner.py``): model × tasks × instances × seeds, resumable,
-  parallel, writing ``trials.jsonl``, GIFs and a summary.
-- ``results.py``: reading records, success rates over seeds, oracle normalisation.
-- ``plugins.py``: the model to benchmark from ``package.module:factory`` or a YAML file.
-- ``classifiers.py``: the RoboDesk success classifiers (training, the shipped files, which
-  are registered into :data:`CLASSIFIERS` on import).
+==================  ==========================================================================
+trial.py            ControlTrial: one agent on one task instance for 15 steps
+config.py           RunConfig: one field per ``vp2 run`` flag (no torch to read it)
+model_spec.py       the model to benchmark from ``package.module:factory``, a YAML file or a
+                    checkpoint (resolve_model), and ``--model-arg`` (parse_model_args)
+runner.py           run_benchmark: model × tasks × instances × seeds, resumable, parallel
+run_dir.py          a run directory: config.yaml, summaries, the checks of a resume
+worker.py           what runs a trial in a worker process (or Ray actor) and its record
+gifs.py             the GIFs of a trial
+results.py          reading records, success rates over seeds, oracle normalisation
+shipped_oracle.py   the simulator oracle's rates shipped with vp2, the default normaliser
+ship_oracle.py      ``vp2 ship-oracle``: builds that file from oracle runs
+main_job.py         ``vp2 main``: the README's small evaluation
+==================  ==========================================================================
+
+The planning agent lives in :mod:`vp2.planning`, the RoboDesk success classifiers in
+:mod:`vp2.classifiers`, the HTML report in :mod:`vp2.report`. The names below are imported on
+first use, so importing one module of the package does not load the others (or torch).
 
 See ``docs/benchmark.md``.
 """
 
-from vp2.benchmark.agent import (
-    CLASSIFIERS,
-    COST_MODES,
-    Agent,
-    ClassifierRegistry,
-    Observation,
-    PlannerConfig,
-    PlanningAgent,
-    SimulatorStateModel,
-    build_cost,
-    build_optimizer,
-    planner_settings,
-)
-from vp2.benchmark.classifiers import register_shipped_classifiers
-from vp2.benchmark.plugins import PluginError, build_model, load_plugin, model_identity
-from vp2.benchmark.results import (
-    Summary,
-    TaskSummary,
-    TrialLog,
-    format_summary,
-    read_trials,
-    summarize,
-    task_success,
-)
-from vp2.benchmark.runner import (
-    ModelFailure,
-    RunConfig,
-    RunResult,
-    parse_model_args,
-    read_config,
-    run_benchmark,
-    select_instances,
-)
-from vp2.benchmark.trial import NUM_CONTROL_STEPS, ControlTrial, TrialResult, trial_seed
+import importlib
+from typing import Any
 
-# The RoboDesk success classifiers shipped in vp2/assets/classifiers, registered (not loaded)
-# into CLASSIFIERS; a task without a file keeps the pixel_only fallback.
-register_shipped_classifiers(CLASSIFIERS)
+#: Where the names of the package live (imported on first use).
+_LAZY_MODULES: dict[str, list[str]] = {
+    "vp2.benchmark.config": ["RunConfig"],
+    "vp2.benchmark.model_spec": [
+        "PluginError", "load_plugin", "model_identity", "parse_model_args", "resolve_model"
+    ],
+    "vp2.benchmark.results": [
+        "Summary", "TaskSummary", "TrialLog", "format_summary", "read_trials", "summarize",
+        "task_success",
+    ],
+    "vp2.benchmark.run_dir": ["read_config"],
+    "vp2.benchmark.runner": ["ModelFailure", "RunResult", "run_benchmark", "select_instances"],
+    "vp2.benchmark.trial": ["ControlTrial", "TrialResult", "trial_seed"],
+    "vp2.classifiers.registry": ["CLASSIFIERS", "ClassifierRegistry"],
+    "vp2.planning.agent": ["Agent", "Observation", "PlanningAgent", "SimulatorStateModel"],
+    "vp2.planning.planner": [
+        "COST_MODES", "PlannerConfig", "build_cost", "build_optimizer", "planner_settings"
+    ],
+    "vp2.spec": ["NUM_CONTROL_STEPS"],
+}
+_LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}
 
-__all__ = [
-    "CLASSIFIERS",
-    "COST_MODES",
-    "NUM_CONTROL_STEPS",
-    "Agent",
-    "ClassifierRegistry",
-    "ControlTrial",
-    "ModelFailure",
-    "Observation",
-    "PlannerConfig",
-    "PlanningAgent",
-    "PluginError",
-    "RunConfig",
-    "RunResult",
-    "SimulatorStateModel",
-    "Summary",
-    "TaskSummary",
-    "TrialLog",
-    "TrialResult",
-    "build_cost",
-    "build_model",
-    "build_optimizer",
-    "format_summary",
-    "load_plugin",
-    "model_identity",
-    "parse_model_args",
-    "planner_settings",
-    "read_config",
-    "read_trials",
-    "run_benchmark",
-    "select_instances",
-    "summarize",
-    "task_success",
-    "trial_seed",
-]
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(_LAZY[name]), name)
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_LAZY])
+
+
+__all__ = sorted(_LAZY)

@@ -12,6 +12,9 @@ and writes one run directory per agent under ``out`` (trials, GIFs, summaries, r
 column per agent and one for the shipped oracle's rates (:mod:`vp2.benchmark.shipped_oracle`),
 which normalises each agent's score. Default sizes keep it within 15 minutes on a 2-core CPU; the deviations
 from the SPEC protocol (one seed, the model's planner samples) are printed with the table.
+
+The main job composes benchmark runs, so it lives with them; the HTML report of each run (a
+later stage, :mod:`vp2.report`) comes in as the ``after_run`` hook that ``vp2 main`` passes.
 """
 
 from __future__ import annotations
@@ -19,13 +22,15 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 
+from vp2 import spec
+from vp2.benchmark.config import RunConfig
 from vp2.benchmark.results import Summary
-from vp2.benchmark.runner import RunConfig, RunResult, run_benchmark
+from vp2.benchmark.runner import RunResult, run_benchmark
 from vp2.benchmark.shipped_oracle import NO_SHIPPED_ORACLE, ShippedOracle, load_shipped_oracle
-from vp2.data.suite import NUM_CONTROL_STEPS
 from vp2.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
@@ -65,12 +70,12 @@ class MainJobConfig:
     num_instances: int = 1
     seeds: tuple[int, ...] = (0,)
     tasks: tuple[str, ...] = ()
-    model_samples: int | None = 50
+    model_samples: int | None = spec.MAIN_JOB_NUM_SAMPLES
     workers: int = 2
     agents: tuple[str, ...] = ("model", "repeat_last_frame", "random")
     resume: bool = True
     suite: str | None = None
-    num_steps: int = NUM_CONTROL_STEPS
+    num_steps: int = spec.NUM_CONTROL_STEPS
 
 
 def _run_configs(config: MainJobConfig) -> dict[str, RunConfig]:
@@ -152,8 +157,16 @@ def _took(name: str, seconds: float, result: RunResult) -> str:
     return f"{name} {seconds / 60:.1f} min ({result.num_run} trials run{done})"
 
 
-def run_main_job(config: MainJobConfig, gallery: bool = True) -> tuple[str, Path]:
-    """Runs the main job; returns the comparison table and the path of ``main.md``."""
+def run_main_job(
+    config: MainJobConfig,
+    gallery: bool = True,
+    after_run: Callable[[Path], None] | None = None,
+) -> tuple[str, Path]:
+    """Runs the main job; returns the comparison table and the path of ``main.md``.
+
+    ``after_run`` is passed to every :func:`~vp2.benchmark.runner.run_benchmark` (``vp2 main``
+    passes :func:`vp2.report.page.write_run_report`: a ``report.html`` per run directory).
+    """
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
     if gallery:
@@ -165,7 +178,7 @@ def run_main_job(config: MainJobConfig, gallery: bool = True) -> tuple[str, Path
     for name, run_config in _run_configs(config).items():
         print(f"== {name}: {run_config.out}", flush=True)
         t0 = time.perf_counter()
-        results[name] = run_benchmark(run_config)
+        results[name] = run_benchmark(run_config, after_run=after_run)
         timings[name] = time.perf_counter() - t0
     table = comparison_table(results, load_shipped_oracle())
     took = ", ".join(_took(n, t, results[n]) for n, t in timings.items())

@@ -15,9 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from vp2.benchmark.agent import Agent, Observation, check_agent_for_env
-from vp2.data.suite import NUM_CONTROL_STEPS, TaskInstance
+from vp2.data.suite import TaskInstance
 from vp2.envs.base import Env
+from vp2.planning.agent import Agent, Observation, check_agent_for_env
+from vp2.spec import NUM_CONTROL_STEPS
 
 
 def trial_seed(task: str, index: int, seed: int) -> int:
@@ -48,7 +49,7 @@ class TrialResult:
         planning_times: Seconds of each planning step (``agent.act``).
         env_time: Seconds spent stepping and rendering the environment.
         total_time: Seconds of the whole trial (environment construction excluded).
-        cost_kind: How plans were scored (:data:`vp2.benchmark.agent.CostKind`).
+        cost_kind: How plans were scored (:data:`vp2.planning.planner.CostKind`).
         agent: The agent's settings for this trial (:meth:`Agent.describe`).
         scores: Best score the optimizer found at each planning step (``None`` if none).
     """

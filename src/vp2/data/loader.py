@@ -20,6 +20,7 @@ import torch
 from torch.utils.data import Dataset
 
 from vp2.data.storage import DatasetError, DemoRecord, dataset_index, require_images
+from vp2.utils.tensors import images_to_float
 
 
 class ClipDataset(Dataset):
@@ -115,7 +116,7 @@ class ClipDataset(Dataset):
         # oneDNN bug in torch 2.13 on CPU).
         frames = torch.from_numpy(g["obs/rgb"][start:end]).permute(0, 3, 1, 2).contiguous()  # (T, 3, H, W)
         if not self.uint8:
-            frames = frames.float().div_(255.0)
+            frames = images_to_float(frames)
         actions = torch.from_numpy(g["actions"][start : end - 1])  # (T - 1, A)
         return {"frames": frames, "actions": actions, "index": int(rec.name[5:]), "start": start}
 

@@ -39,6 +39,7 @@ from tqdm.auto import tqdm
 
 from vp2.envs import ROBODESK_TASKS, TABLETOP_TASKS, TASK_NAMES, make_env, split_name
 from vp2.envs.base import Env
+from vp2.spec import NUM_CONTROL_STEPS
 from vp2.utils.executors import Executor, LocalExecutor
 from vp2.utils.io import atomic_path
 
@@ -50,10 +51,8 @@ SUITE_COUNTS: dict[str, int] = {
 SUITE_SEED = 2023
 GOAL_IMAGE_SIZE = 64
 HORIZON = 35
-#: Control steps per trial (SPEC §4). Defined here, below the benchmark layer, because the
-#: suite's acceptance depends on it; ``vp2.benchmark.trial`` uses the same constant.
-NUM_CONTROL_STEPS = 15
-#: Actions a control trial can choose: the first of its steps executes the zero action.
+#: Actions a control trial of :data:`vp2.spec.NUM_CONTROL_STEPS` steps can choose: the first of
+#: its steps executes the zero action. The suite's acceptance depends on it.
 TRIAL_FREE_ACTIONS = NUM_CONTROL_STEPS - 1
 #: The most scripted actions an instance's goal may take to reach from its initial state
 #: (SPEC §2: two actions of slack below a trial's 14).

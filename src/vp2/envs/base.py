@@ -114,14 +114,19 @@ class Env(gymnasium.Env, abc.ABC):  # type: ignore[type-arg]
         self.close()
 
     # ---- gymnasium spaces and generator -----------------------------------------------------
+    def _cached_box(self, key: str, low: float, high: float, shape: tuple[int, ...],
+                    dtype: type) -> spaces.Box:
+        """The space stored under ``key``, made anew only when its shape no longer fits."""
+        space = self.__dict__.get(key)
+        if space is None or space.shape != shape:
+            space = spaces.Box(low, high, shape, dtype)
+            self.__dict__[key] = space
+        return space
+
     @property
     def action_space(self) -> spaces.Box:
         """``Box(-1, 1, (action_dim,), float32)``, one object per environment (seedable)."""
-        space = self.__dict__.get("_action_space")
-        if space is None or space.shape != (self.action_dim,):
-            space = spaces.Box(-1.0, 1.0, (self.action_dim,), np.float32)
-            self.__dict__["_action_space"] = space
-        return space
+        return self._cached_box("_action_space", -1.0, 1.0, (self.action_dim,), np.float32)
 
     @action_space.setter
     def action_space(self, space: spaces.Space) -> None:
@@ -134,11 +139,7 @@ class Env(gymnasium.Env, abc.ABC):  # type: ignore[type-arg]
         size = getattr(self, "observation_size", None)
         if size is None:
             return None
-        space = self.__dict__.get("_observation_space")
-        if space is None or space.shape != (size, size, 3):
-            space = spaces.Box(0, 255, (size, size, 3), np.uint8)
-            self.__dict__["_observation_space"] = space
-        return space
+        return self._cached_box("_observation_space", 0, 255, (size, size, 3), np.uint8)
 
     @observation_space.setter
     def observation_space(self, space: spaces.Space) -> None:

@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from vp2.envs import TASK_NAMES, make_env
+from vp2.envs.factory import make_env
 from vp2.envs.rendering import contact_sheet
+from vp2.envs.tasks import TASK_NAMES
 
 
 @dataclasses.dataclass

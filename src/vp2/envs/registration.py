@@ -21,8 +21,9 @@ from typing import Any
 
 import gymnasium
 
-from vp2.envs import TASK_NAMES, make_env, split_name
 from vp2.envs.base import Env
+from vp2.envs.factory import make_env
+from vp2.envs.tasks import TASK_NAMES, split_name
 
 #: Gymnasium namespace of the vp2 ids.
 NAMESPACE = "vp2"

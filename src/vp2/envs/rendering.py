@@ -22,6 +22,7 @@ import dataclasses
 import os
 import weakref
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -102,6 +103,17 @@ class RenderSpec:
             return height, width
         side = max(self.min_render_size, height, width)
         return side, side
+
+
+#: The quality knobs both environments' specs share, chosen by measurement for software
+#: rendering (docs/robodesk.md, docs/tabletop.md): no multisampling, no reflection pass, planes
+#: tessellated into 0.5 m squares and the built-in primitives into 16 slices, 8 stacks and one
+#: quad per box face. An environment adds its camera, shadows, skybox and mesh reduction:
+#: ``RenderSpec(camera=..., shadow_size=..., **SOFTWARE_RENDERING)``.
+SOFTWARE_RENDERING: dict[str, Any] = {
+    "multisamples": 0, "reflection": False, "plane_spacing": 0.5,
+    "numslices": 16, "numstacks": 8, "numquads": 1,
+}
 
 
 def configure_model(model: mujoco.MjModel, spec: RenderSpec, height: int, width: int) -> None:

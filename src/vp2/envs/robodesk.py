@@ -24,36 +24,28 @@ the env exposes the simulator state instead.
 State vector (:meth:`RoboDeskEnv.get_state`): MuJoCo's ``mjSTATE_INTEGRATION`` state (time,
 qpos, qvel, act, the constraint solver's warm start, ctrl, applied forces, ...), followed by the
 positions of the three objects at reset (9 numbers) that the off-table tasks compare against.
+
+The physics and render-only models and the camera's :data:`RENDER_SPEC` are built in
+:mod:`vp2.envs._robodesk_model`.
 """
 
 from __future__ import annotations
 
-import copy
-import importlib.util
 import math
-import os
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import mujoco
 import numpy as np
 
 from vp2.envs._ik import SitePositionIK
+from vp2.envs._robodesk_model import RENDER_SPEC, load_model, load_render_model
 from vp2.envs.base import Env
-from vp2.envs.meshes import simplified_render_model
-from vp2.envs.rendering import FreeCamera, Renderer, RenderSpec
+from vp2.envs.rendering import Renderer
+from vp2.envs.tasks import ROBODESK_TASKS
 
-#: The seven task categories.
-TASKS: tuple[str, ...] = (
-    "push_red",
-    "push_green",
-    "push_blue",
-    "open_slide",
-    "open_drawer",
-    "flat_block_off_table",
-    "upright_block_off_table",
-)
+#: The seven task categories (:data:`vp2.envs.tasks.ROBODESK_TASKS`).
+TASKS: tuple[str, ...] = ROBODESK_TASKS
 #: The movable objects, in the order their reset positions appear in the state vector.
 OBJECTS: tuple[str, ...] = ("ball", "upright_block", "flat_block")
 
@@ -76,83 +68,6 @@ DENSE_LABEL_THRESHOLD = 30.0
 # Initial-state distribution of the package (``RoboDesk.reset``).
 INIT_ROBOT_QPOS = np.array([-0.30, -0.4, 0.28, -2.5, 0.13, 1.87, 0.91, 0.01, 0.01])
 INIT_ROBOT_NOISE = 0.15  # times a uniform draw over each actuator's control range
-
-#: The benchmark camera (SPEC §1.1) and the quality settings chosen for software rendering
-#: (``benchmarks/bench_render_floor.py``, docs/robodesk.md "Rendering"). The renderer draws a
-#: render-only model whose Panda visual meshes (134k of the scene's 142k triangles) are
-#: decimated to 5% (``mesh_reduction=0.95``, :func:`load_render_model`; physics untouched);
-#: the floor plane is tessellated into 0.5 m squares instead of 0.1 m (25x fewer quads per
-#: pass) and the built-in spheres/cylinders/boxes more coarsely (16 slices, 8 stacks, 1 quad
-#: per box face). All three lights still cast shadows (the shadows are large areas of the
-#: image: with two shadow lights ~12/255 off, with none ~40/255), 512² shadow maps, no
-#: multisampling (the 120 px render is LANCZOS-resized anyway), no reflection pass. Each
-#: shadow-casting light costs a depth pass and a lighting pass, so at the geometry floor the
-#: shadows are still ~85% of the frame. Measured (2026-11-24, 2-core VM, llvmpipe, load ~4):
-#: mean absolute error 6.53/255 (max 7.23) against ``full_quality()`` with the original
-#: meshes over 98 varied states (budget 8/255), 18.8 ms per 64x64 frame vs 107.6 ms with the
-#: previous settings and original meshes. See docs/robodesk.md.
-RENDER_SPEC = RenderSpec(
-    camera=FreeCamera(distance=1.8, azimuth=90.0, elevation=-60.0, lookat=(0.0, 0.535, 1.1)),
-    min_render_size=120,
-    crop_box=(16.75, 25.0, 105.0, 88.75),
-    crop_reference=120,
-    shadow_size=512,
-    shadow_lights=(0, 1, 2),
-    multisamples=0,
-    reflection=False,
-    skybox=True,
-    mesh_reduction=0.95,
-    plane_spacing=0.5,
-    numslices=16,
-    numstacks=8,
-    numquads=1,
-)
-
-
-def asset_path() -> Path:
-    """Path of the ``robodesk`` package's ``desk.xml``.
-
-    Found without importing ``robodesk`` (which imports gym and dm_control).
-    """
-    spec = importlib.util.find_spec("robodesk")
-    if spec is None or not spec.submodule_search_locations:
-        raise ImportError(
-            "the `robodesk` package is required for the RoboDesk tasks: pip install robodesk"
-        )
-    return Path(next(iter(spec.submodule_search_locations))) / "assets" / "desk.xml"
-
-
-#: The bodies whose visual-only meshes the render model simplifies: the Panda's.
-RENDER_MESH_BODIES = ("panda0_",)
-
-_BASE_MODEL: mujoco.MjModel | None = None
-_RENDER_MODELS: dict[float, mujoco.MjModel] = {}
-
-
-def load_model() -> mujoco.MjModel:
-    """A fresh copy of the compiled RoboDesk model (compiled once per process)."""
-    global _BASE_MODEL
-    if _BASE_MODEL is None:
-        _BASE_MODEL = mujoco.MjModel.from_xml_path(os.fspath(asset_path()))
-    # copy.copy deep-copies the model's arrays: an env may change its own options freely.
-    return copy.copy(_BASE_MODEL)
-
-
-def load_render_model(mesh_reduction: float | None = None) -> mujoco.MjModel:
-    """The render-only model: ``desk.xml`` with its large visual-only meshes (the Panda's)
-    decimated by ``mesh_reduction`` (default ``RENDER_SPEC.mesh_reduction``).
-
-    Built once per process (about 0.3 s, the decimated meshes cached on disk, see
-    :mod:`vp2.envs.meshes`); the caller gets a copy. Never used for physics.
-    """
-    reduction = RENDER_SPEC.mesh_reduction if mesh_reduction is None else float(mesh_reduction)
-    model = _RENDER_MODELS.get(reduction)
-    if model is None:
-        model = simplified_render_model(
-            asset_path(), target_reduction=reduction, body_prefixes=RENDER_MESH_BODIES
-        )
-        _RENDER_MODELS[reduction] = model
-    return copy.copy(model)
 
 
 class RoboDeskEnv(Env):

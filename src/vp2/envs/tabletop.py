@@ -23,11 +23,11 @@ State vector (:meth:`TabletopEnv.get_state`), ``float64``::
 
 The first block is MuJoCo's full integration state (time, qpos, qvel, warm start, ctrl, ...);
 the texture ids index :data:`TEXTURE_NAMES`; the last 9 numbers are the controller state that
-robosuite keeps between steps (see :class:`vp2.envs._tabletop_sim.LeanStepper`). Restoring a
-state and replaying actions is bit-identical, also in a fresh process.
+robosuite keeps between steps (see :class:`vp2.envs._tabletop_stepper.LeanStepper`).
+Restoring a state and replaying actions is bit-identical, also in a fresh process.
 
 Speed: a control step does not go through robosuite's ``env.step`` but through
-:class:`~vp2.envs._tabletop_sim.LeanStepper`, which performs the same arithmetic without
+:class:`~vp2.envs._tabletop_stepper.LeanStepper`, which performs the same arithmetic without
 robosuite's per-physics-step bookkeeping (bit-identical results, several times faster); images
 come from the shared :class:`~vp2.envs.rendering.Renderer` with :data:`RENDER_SPEC`. See
 ``docs/tabletop.md`` for the measurements.
@@ -40,8 +40,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from vp2.envs import TABLETOP_TASKS
-from vp2.envs._tabletop_sim import (
+from vp2.envs._tabletop_stepper import LeanStepper
+from vp2.envs._tabletop_world import (
     CAMERA_NAME,
     OBJECT_FOOTPRINT,
     OBJECT_NAMES,
@@ -50,11 +50,11 @@ from vp2.envs._tabletop_sim import (
     TABLE_FULL_SIZE,
     TABLE_TOP_Z,
     TEXTURE_NAMES,
-    LeanStepper,
     TabletopWorld,
 )
 from vp2.envs.base import Env
-from vp2.envs.rendering import Renderer, RenderSpec
+from vp2.envs.rendering import SOFTWARE_RENDERING, Renderer, RenderSpec
+from vp2.envs.tasks import TABLETOP_TASKS
 
 __all__ = [
     "ARM_INIT_NOISE",
@@ -84,14 +84,9 @@ RENDER_SPEC = RenderSpec(
     camera=CAMERA_NAME,
     shadow_size=256,
     shadow_lights=(),
-    multisamples=0,
-    reflection=False,
     skybox=False,
     mesh_reduction=0.7,
-    plane_spacing=0.5,
-    numslices=16,
-    numstacks=8,
-    numquads=1,
+    **SOFTWARE_RENDERING,
 )
 
 #: Success threshold on the largest object displacement from the goal (metres), SPEC §1.2.

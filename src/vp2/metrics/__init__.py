@@ -2,7 +2,8 @@
 
 The image metrics take ``(..., 3, H, W)`` images in [0, 1] and return one value per image
 ``(...)``. :class:`LPIPS` is also the training's perceptual loss
-(``TrainConfig(perceptual="lpips")``). :class:`FrechetVideoDistance` compares two sets of
+(``TrainConfig(perceptual="lpips")``), so it is defined in the training stage
+(:mod:`vp2.training.perceptual`) and exported here. :class:`FrechetVideoDistance` compares two sets of
 videos with the Kinetics-400 :class:`I3D`. :func:`evaluate_model` scores a model on held-out
 clips (``vp2 metrics``). Weights are read from local files, never downloaded: see
 ``docs/metrics.md``.
@@ -20,7 +21,7 @@ from vp2.metrics.fvd import (
 )
 from vp2.metrics.i3d import I3D, I3D_FILE, find_i3d_weights, random_i3d
 from vp2.metrics.image import gaussian_window, mse, psnr, ssim
-from vp2.metrics.lpips import (
+from vp2.training.perceptual import (
     BACKBONES,
     LPIPS,
     WEIGHTS_ENV,
@@ -32,8 +33,8 @@ from vp2.metrics.lpips import (
     weight_dirs,
 )
 
-# The evaluation loop imports the model and data stages; loaded on first use so that
-# `from vp2.metrics import LPIPS` (used by the trainer) stays light and cycle-free.
+# The evaluation loop imports the model, data and benchmark stages; loaded on first use so
+# that `from vp2.metrics import LPIPS` stays light.
 _EVALUATE = ("evaluate_model", "write_metrics")
 
 

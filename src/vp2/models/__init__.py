@@ -1,38 +1,42 @@
-"""Video prediction models: the interface the planner uses, SVG′ and FitVid, and a registry.
+"""Video prediction models: the interface the planner uses, the trained networks, a registry.
 
-- :class:`VideoPredictionModel`: the protocol (shapes, ranges, dtypes in its docstring);
-  :class:`VideoPredictor`: base class of trainable networks, whose ``predict`` checks every
-  call; :class:`CheckedModel`: the same checks around any other implementation.
-- :func:`build_model` / :func:`load_model`: a fresh model from a name and preset, or a trained
-  one from a checkpoint. Training lives in :mod:`vp2.training`. See ``docs/models.md``.
+- :mod:`vp2.models.contract`: :class:`VideoPredictionModel`, the protocol (shapes, ranges,
+  dtypes in its docstring), its boundary checks, and :class:`CheckedModel`, the same checks
+  around any implementation.
+- :mod:`vp2.models.base`: :class:`VideoPredictor`, base class of the trainable networks,
+  whose ``predict`` checks every call; :mod:`vp2.models.layers`: what the networks share.
+- :func:`build_model` / :func:`load_model` (:mod:`vp2.models.registry`): a fresh model from a
+  name and preset, or a trained one from a checkpoint (:mod:`vp2.models.checkpoint`).
+  Training lives in :mod:`vp2.training`. See ``docs/models.md``.
 """
 
-from vp2.models.base import (
+from vp2.models.base import LossOutput, ModelConfig, TrainingDefaults, VideoPredictor
+from vp2.models.checkpoint import (
+    CHECKPOINT_FORMAT,
+    latest_checkpoint,
+    read_model_checkpoint,
+    write_model_checkpoint,
+)
+from vp2.models.contract import (
     DEFAULT_MAX_BATCH_SIZE,
-    NUM_CONTEXT,
-    NUM_FUTURE,
     CheckedModel,
-    LossOutput,
     ModelContractError,
-    PerceptualLoss,
-    TrainingDefaults,
     VideoPredictionModel,
-    VideoPredictor,
     check_inputs,
     check_output,
     checked,
     predict_in_chunks,
 )
 from vp2.models.fitvid import FitVid, FitVidConfig
-from vp2.models.maskvit import MaskViT, MaskViTConfig, MaskViTTokenizer, MaskViTTokenizerConfig
+from vp2.models.layers import PerceptualLoss
+from vp2.models.maskvit import MaskViT, MaskViTConfig
+from vp2.models.maskvit.tokenizer import MaskViTTokenizer, MaskViTTokenizerConfig
 from vp2.models.mcvd import MCVD, MCVDConfig
 from vp2.models.registry import (
-    CHECKPOINT_FORMAT,
     MODELS,
     all_variants,
     apply_overrides,
     build_model,
-    latest_checkpoint,
     load_model,
     load_model_spec,
     make_config,
@@ -41,10 +45,10 @@ from vp2.models.registry import (
     parse_model_spec,
     parse_overrides,
     preset_names,
-    read_checkpoint,
 )
 from vp2.models.struct_vrnn import StructVRNN, StructVRNNConfig
 from vp2.models.svg_prime import SVGPrime, SVGPrimeConfig
+from vp2.spec import NUM_CONTEXT, NUM_FUTURE
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -62,6 +66,7 @@ __all__ = [
     "MaskViTConfig",
     "MaskViTTokenizer",
     "MaskViTTokenizerConfig",
+    "ModelConfig",
     "ModelContractError",
     "PerceptualLoss",
     "SVGPrime",
@@ -87,5 +92,6 @@ __all__ = [
     "parse_overrides",
     "predict_in_chunks",
     "preset_names",
-    "read_checkpoint",
+    "read_model_checkpoint",
+    "write_model_checkpoint",
 ]

@@ -23,32 +23,23 @@ Variants (``vp2.models.registry``): ``default`` (g 128, LSTM 256, ~10.4 M parame
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from vp2.models.base import (
-    NUM_CONTEXT,
-    NUM_FUTURE,
-    LossOutput,
-    PerceptualLoss,
-    TrainingDefaults,
-    VideoPredictor,
-    frame_losses,
-    gaussian_kl,
-    reparameterize,
-)
+from vp2.models.base import LossOutput, ModelConfig, TrainingDefaults, VideoPredictor
+from vp2.models.layers import FrameLoss, context_skips, gaussian_kl, per_frame, reparameterize
 
 
 @dataclasses.dataclass
-class FitVidConfig:
+class FitVidConfig(ModelConfig):
     """Architecture and loss settings of FitVid (defaults: the VP² "default" model).
 
+    ``image_size`` must be divisible by ``2 ** (len(stage_sizes) - 1)``.
+
     Attributes:
-        action_dim: Action size ``A``.
-        image_size: Frame side; divisible by ``2 ** (len(stage_sizes) - 1)``.
         g_dim: Size of the frame encoding ``h``.
         rnn_size: LSTM width.
         z_dim: Latent size.
@@ -58,13 +49,9 @@ class FitVidConfig:
         decoder_expand: Channel expansion inside decoder blocks.
         predictor_layers: LSTM layers of the frame predictor.
         latent_layers: LSTM layers of the prior and of the posterior.
-        beta: KL weight.
-        num_context: Context frames.
-        num_future: Predicted frames.
+        beta: KL weight in ``loss = MSE + beta · Σ_t KL_t`` (MSE: mean over all frames).
     """
 
-    action_dim: int = 5
-    image_size: int = 64
     g_dim: int = 128
     rnn_size: int = 256
     z_dim: int = 10
@@ -75,19 +62,18 @@ class FitVidConfig:
     predictor_layers: int = 2
     latent_layers: int = 1
     beta: float = 1e-4
-    num_context: int = NUM_CONTEXT
-    num_future: int = NUM_FUTURE
+
+    @property
+    def downsample(self) -> int:
+        """How much the encoder shrinks a frame's side: 2 per stage after the first."""
+        return 2 ** (len(self.stage_sizes) - 1)
 
     def __post_init__(self) -> None:
         # Checkpoints store plain lists; the architecture wants a hashable tuple.
         self.stage_sizes = tuple(int(s) for s in self.stage_sizes)
         if not self.stage_sizes or min(self.stage_sizes) < 1:
             raise ValueError(f"fitvid: stage_sizes must be >= 1 each, got {self.stage_sizes}")
-        factor = 2 ** (len(self.stage_sizes) - 1)
-        if self.image_size % factor:
-            raise ValueError(
-                f"fitvid: image_size must be a multiple of {factor}, got {self.image_size}"
-            )
+        self.check_image_size("fitvid", self.downsample)
 
 
 class SqueezeExcite(nn.Module):
@@ -190,7 +176,7 @@ class Decoder(nn.Module):
 
     def __init__(self, config: FitVidConfig):
         super().__init__()
-        self.side = config.image_size // 2 ** (len(config.stage_sizes) - 1)
+        self.side = config.image_size // config.downsample
         self.first_channels = config.first_block_channels
         self.dense = nn.Linear(config.g_dim, self.first_channels * self.side**2)
         blocks, cin = [], self.first_channels
@@ -237,13 +223,15 @@ class GaussianLSTM(nn.Module):
 
 
 class FitVid(VideoPredictor):
-    """FitVid; see the module docstring."""
+    """FitVid: a residual encoder and decoder around LSTMs on frame vectors.
+
+    Architecture, loss and inference: see the module docstring.
+    """
 
     name: ClassVar[str] = "fitvid"
     config_class: ClassVar[type] = FitVidConfig
-    training_defaults: ClassVar[TrainingDefaults] = TrainingDefaults(
-        optimizer="adam", lr=3e-4, betas=(0.9, 0.999), eps=1e-8, grad_clip=100.0
-    )
+    #: Adam 3e-4, betas (0.9, 0.999), eps 1e-8, gradient clipping at 100.
+    training_defaults: ClassVar[TrainingDefaults] = TrainingDefaults(grad_clip=100.0)
 
     def __init__(self, config: FitVidConfig):
         super().__init__(config)
@@ -254,27 +242,14 @@ class FitVid(VideoPredictor):
         self.prior = GaussianLSTM(g, config.rnn_size, z, config.latent_layers)
         self.posterior = GaussianLSTM(g, config.rnn_size, z, config.latent_layers)
 
-    def config_dict(self) -> dict[str, Any]:
-        d = super().config_dict()
-        d["stage_sizes"] = list(d["stage_sizes"])
-        return d
-
     def _encode(self, frames: Tensor) -> tuple[Tensor, list[Tensor]]:
         """``(B, T, 3, H, W)`` -> ``h (T, B, g)`` (time-major, for ``nn.LSTM``) and skips
         ``(B, T, C_i, H_i, W_i)``."""
-        b, t = frames.shape[:2]
-        # Contiguous: a channels-last batch (e.g. a permuted uint8 clip) crashed oneDNN's
-        # backward in this encoder (torch 2.13 CPU), and layouts change the rounding.
-        h, skips = self.encoder(frames.flatten(0, 1).contiguous())
-        return h.unflatten(0, (b, t)).transpose(0, 1), [s.unflatten(0, (b, t)) for s in skips]
+        h, skips = per_frame(self.encoder, frames)
+        return h.transpose(0, 1), skips
 
-    def compute_loss(
-        self,
-        frames: Tensor,
-        actions: Tensor,
-        generator: torch.Generator,
-        perceptual: PerceptualLoss | None = None,
-        perceptual_weight: float = 0.0,
+    def _compute_loss(
+        self, frames: Tensor, actions: Tensor, generator: torch.Generator, frame_loss: FrameLoss
     ) -> LossOutput:
         """See :meth:`VideoPredictor.compute_loss`. Under teacher forcing every LSTM input is
         known in advance, so each LSTM runs over the whole clip in one call."""
@@ -286,23 +261,17 @@ class FitVid(VideoPredictor):
         z = reparameterize(mu_q, logvar_q, generator)
         inp = torch.cat([h[:-1], actions.transpose(0, 1).to(h.dtype), z], -1)  # (T - 1, B, g+a+z)
         h_pred = torch.sigmoid(self.predictor(inp)[0])  # (T - 1, B, g)
-        # Skips: frame t - 1 while inside the context, then the last context frame (no target
-        # frame leaks into its own reconstruction).
-        src = torch.tensor(
-            [min(t - 1, context - 1) for t in range(1, t_total)], device=frames.device
-        )
-        step_skips = [s.index_select(1, src).flatten(0, 1) for s in skips]
+        step_skips = context_skips(skips, context)  # no target frame leaks into its own skips
         preds = self.decoder(h_pred.transpose(0, 1).flatten(0, 1), step_skips)
         preds = preds.unflatten(0, (b, t_total - 1))  # (B, T - 1, 3, H, W)
-        mse, recon, lp = frame_losses(preds, frames[:, 1:], perceptual, perceptual_weight)
+        losses = frame_loss(preds, frames[:, 1:])
         kl = torch.stack(
             [gaussian_kl(mu_q[i], logvar_q[i], mu_p[i], logvar_p[i]) for i in range(t_total - 1)]
         )  # (T - 1,)
-        loss = recon.mean() + self.config.beta * kl.sum()
-        metrics = {"mse": mse.mean().detach(), "kl": kl.sum().detach()}
-        if lp is not None:
-            metrics["perceptual"] = lp.mean().detach()
-        return LossOutput(loss=loss, metrics=metrics, predictions=preds)
+        loss = losses.total.mean() + self.config.beta * kl.sum()
+        return LossOutput(
+            loss=loss, metrics=losses.metrics(kl=kl.sum().detach()), predictions=preds
+        )
 
     def _predict(
         self, context_frames: Tensor, actions: Tensor, generator: torch.Generator

@@ -32,33 +32,27 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 from torch.func import functional_call
 
-from vp2.models.base import (
-    NUM_CONTEXT,
-    NUM_FUTURE,
-    LossOutput,
-    PerceptualLoss,
-    TrainingDefaults,
-    VideoPredictor,
-    sample_normal,
-)
+from vp2.models.base import LossOutput, ModelConfig, TrainingDefaults, VideoPredictor
+from vp2.models.layers import FrameLoss, group_norm, sample_normal
 
 log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
-class MCVDConfig:
+class MCVDConfig(ModelConfig):
     """Architecture, diffusion and sampling settings of MCVD (defaults: the paper's model).
 
+    ``image_size`` must be divisible by ``2 ** (len(channel_mult) - 1)``, and ``num_future``
+    by ``window``.
+
     Attributes:
-        action_dim: Action size ``A``.
-        image_size: Frame side; divisible by ``2 ** (len(channel_mult) - 1)``.
         window: Frames predicted per diffusion sample (5); ``num_future`` must be a
             multiple of it.
         base_channels: U-Net channels at full resolution. Keep it >= ``2 · 3W`` (30): the
@@ -81,12 +75,8 @@ class MCVDConfig:
         cond_mask_prob: Probability of hiding the context frames of a training sample (the
             "masked" conditioning of MCVD, which also trains unconditional generation);
             0 trains prediction only.
-        num_context: Context frames (2).
-        num_future: Predicted frames (10).
     """
 
-    action_dim: int = 5
-    image_size: int = 64
     window: int = 5
     base_channels: int = 64
     channel_mult: tuple[int, ...] = (1, 2, 3, 4)
@@ -101,8 +91,6 @@ class MCVDConfig:
     ema_decay: float = 0.999
     use_ema: bool = True
     cond_mask_prob: float = 0.0
-    num_context: int = NUM_CONTEXT
-    num_future: int = NUM_FUTURE
 
     def __post_init__(self) -> None:
         self.channel_mult = tuple(int(c) for c in self.channel_mult)
@@ -113,9 +101,7 @@ class MCVDConfig:
             )
         if self.window < self.num_context:
             raise ValueError("mcvd: window must be >= num_context (autoregression)")
-        factor = 2 ** (len(self.channel_mult) - 1)
-        if self.image_size % factor:
-            raise ValueError(f"mcvd: image_size must be a multiple of {factor}")
+        self.check_image_size("mcvd", 2 ** (len(self.channel_mult) - 1))
         if self.base_channels < self.min_base_channels:
             log.warning(
                 "mcvd: base_channels=%d < %d (2 x 3 x window): the U-Net's output SiLU cannot "
@@ -139,10 +125,6 @@ class MCVDConfig:
         return 3 * self.num_context + (self.window + 1) * self.action_dim
 
 
-def _groups(channels: int) -> int:
-    return math.gcd(32, channels)
-
-
 def timestep_embedding(t: Tensor, dim: int) -> Tensor:
     """Sinusoidal embedding ``(N,)`` -> ``(N, dim)`` (Transformer/DDPM)."""
     half = dim // 2
@@ -156,7 +138,7 @@ class SPADENorm(nn.Module):
 
     def __init__(self, channels: int, cond_channels: int, hidden: int):
         super().__init__()
-        self.norm = nn.GroupNorm(_groups(channels), channels, affine=False)
+        self.norm = group_norm(channels, affine=False)
         self.shared = nn.Sequential(nn.Conv2d(cond_channels, hidden, 3, 1, 1), nn.SiLU())
         self.gamma = nn.Conv2d(hidden, channels, 3, 1, 1)
         self.beta = nn.Conv2d(hidden, channels, 3, 1, 1)
@@ -194,7 +176,7 @@ class AttnBlock(nn.Module):
 
     def __init__(self, channels: int):
         super().__init__()
-        self.norm = nn.GroupNorm(_groups(channels), channels)
+        self.norm = group_norm(channels)
         self.qkv = nn.Conv2d(channels, 3 * channels, 1)
         self.proj = nn.Conv2d(channels, channels, 1)
 
@@ -244,7 +226,7 @@ class UNet(nn.Module):
                 self.up.append(nn.ModuleList([nn.Upsample(scale_factor=2, mode="nearest"),
                                               nn.Conv2d(cur, cur, 3, 1, 1)]))  # fmt: skip
                 side *= 2
-        self.out_norm = nn.GroupNorm(_groups(cur), cur)
+        self.out_norm = group_norm(cur)
         self.out = nn.Conv2d(cur, channels, 3, 1, 1)
 
     def forward(self, x: Tensor, t: Tensor, cond: Tensor) -> Tensor:
@@ -272,13 +254,15 @@ class UNet(nn.Module):
 
 
 class MCVD(VideoPredictor):
-    """Action-conditioned MCVD; see the module docstring."""
+    """Action-conditioned MCVD: a DDPM whose SPADE U-Net denoises windows of 5 frames.
+
+    The weights' EMA (buffers ``ema_*``) predicts; see the module docstring.
+    """
 
     name: ClassVar[str] = "mcvd"
     config_class: ClassVar[type] = MCVDConfig
-    training_defaults: ClassVar[TrainingDefaults] = TrainingDefaults(
-        optimizer="adam", lr=2e-4, betas=(0.9, 0.999), eps=1e-8, grad_clip=1.0
-    )
+    #: Adam 2e-4, betas (0.9, 0.999), eps 1e-8, gradient clipping at 1.
+    training_defaults: ClassVar[TrainingDefaults] = TrainingDefaults(lr=2e-4, grad_clip=1.0)
 
     def __init__(self, config: MCVDConfig):
         super().__init__(config)
@@ -296,14 +280,6 @@ class MCVD(VideoPredictor):
         for name, p in self.unet.named_parameters():
             self.register_buffer(self._ema_names[name], p.detach().clone())
         self.register_buffer("ema_updates", torch.zeros((), dtype=torch.long))
-
-    def config_dict(self) -> dict[str, Any]:
-        d = super().config_dict()
-        d["channel_mult"], d["attn_resolutions"] = (
-            list(d["channel_mult"]),
-            list(d["attn_resolutions"]),
-        )
-        return d
 
     def num_parameters(self) -> int:
         """Trainable weights (the EMA copy is a buffer and not counted)."""
@@ -339,13 +315,8 @@ class MCVD(VideoPredictor):
 
     # ----------------------------------------------------------------- training
 
-    def compute_loss(
-        self,
-        frames: Tensor,
-        actions: Tensor,
-        generator: torch.Generator,
-        perceptual: PerceptualLoss | None = None,
-        perceptual_weight: float = 0.0,
+    def _compute_loss(
+        self, frames: Tensor, actions: Tensor, generator: torch.Generator, frame_loss: FrameLoss
     ) -> LossOutput:
         """The DDPM objective on one random window per clip.
 

@@ -21,14 +21,15 @@ from typing import Any
 import torch
 
 from vp2.models.base import VideoPredictor
+from vp2.models.checkpoint import latest_checkpoint, read_model_checkpoint
 from vp2.models.fitvid import FitVid
-from vp2.models.maskvit import MaskViT, MaskViTTokenizer
+from vp2.models.maskvit import MaskViT
+from vp2.models.maskvit.tokenizer import MaskViTTokenizer
 from vp2.models.mcvd import MCVD
 from vp2.models.struct_vrnn import StructVRNN
 from vp2.models.svg_prime import SVGPrime
-
-#: Format tag of checkpoints written by :mod:`vp2.training` (and read by :func:`load_model`).
-CHECKPOINT_FORMAT = "vp2-checkpoint/1"
+from vp2.utils.kv import parse_key_values
+from vp2.utils.tensors import resolve_device
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +38,7 @@ class ModelEntry:
 
     model_class: type[VideoPredictor]
     presets: Mapping[str, Mapping[str, Any]]
-    default_preset: str
+    default_preset: str = "default"
 
 
 #: Tokenizer size presets, shared by ``maskvit_tokenizer`` and the ``maskvit`` presets.
@@ -72,7 +73,6 @@ MODELS: dict[str, ModelEntry] = {
             "small_encoder": {"g_dim": 64, "rnn_size": 128},
             "mini": {"g_dim": 32, "rnn_size": 64, "num_base_filters": 8},
         },
-        default_preset="default",
     ),
     StructVRNN.name: ModelEntry(
         StructVRNN,
@@ -95,7 +95,6 @@ MODELS: dict[str, ModelEntry] = {
                 "rnn_layers": 1,
             },
         },
-        default_preset="default",
     ),
     MCVD.name: ModelEntry(
         MCVD,
@@ -122,7 +121,6 @@ MODELS: dict[str, ModelEntry] = {
                 "sampling_steps": 10,
             },
         },
-        default_preset="default",
     ),
     MaskViTTokenizer.name: ModelEntry(
         MaskViTTokenizer,
@@ -131,7 +129,6 @@ MODELS: dict[str, ModelEntry] = {
             "small": dict(MASKVIT_TOKENIZER_PRESETS["small"]),
             "tiny": dict(MASKVIT_TOKENIZER_PRESETS["tiny"]),
         },
-        default_preset="default",
     ),
     MaskViT.name: ModelEntry(
         MaskViT,
@@ -152,7 +149,6 @@ MODELS: dict[str, ModelEntry] = {
                 "tokenizer": dict(MASKVIT_TOKENIZER_PRESETS["tiny"]),
             },
         },
-        default_preset="default",
     ),
 }
 
@@ -224,13 +220,7 @@ def apply_overrides(config: Any, overrides: Mapping[str, Any]) -> Any:
 def parse_overrides(items: Sequence[str]) -> dict[str, str]:
     """Parses command-line ``key=value`` strings (values stay strings; see
     :func:`apply_overrides`)."""
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise ValueError(f"override {item!r}: expected key=value")
-        out[key.strip()] = value.strip()
-    return out
+    return parse_key_values(items, "override")
 
 
 def make_config(name: str, preset: str | None = None, **overrides: Any) -> Any:
@@ -267,33 +257,7 @@ def build_model(
     return model_from_config(name, make_config(name, preset, **overrides), seed)
 
 
-# --------------------------------------------------------------------------- checkpoints
-
-
-def latest_checkpoint(path: str | os.PathLike[str]) -> Path:
-    """The checkpoint a path designates: a file itself, else the newest ``step_*.pt`` in the
-    directory or in its ``checkpoints/`` subdirectory (a training run's output directory).
-
-    Raises:
-        FileNotFoundError: if there is none.
-    """
-    path = Path(path)
-    if path.is_file():
-        return path
-    for directory in (path, path / "checkpoints"):
-        found = sorted(directory.glob("step_*.pt")) if directory.is_dir() else []
-        if found:
-            return found[-1]  # zero-padded step numbers sort in step order
-    raise FileNotFoundError(f"{path}: no checkpoint (expected a .pt file or a run directory)")
-
-
-def read_checkpoint(path: str | os.PathLike[str], map_location: Any = "cpu") -> dict[str, Any]:
-    """Loads a vp2 checkpoint with ``torch.load(weights_only=True)`` and checks its format."""
-    path = latest_checkpoint(path)
-    payload = torch.load(path, map_location=map_location, weights_only=True)
-    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: not a {CHECKPOINT_FORMAT} checkpoint")
-    return payload
+# --------------------------------------------------------------------------- loading
 
 
 def load_model(
@@ -317,8 +281,8 @@ def load_model(
         ValueError: not a vp2 checkpoint, a different model than ``expected_name``, an unknown
             override field, or an override the checkpoint's weights do not fit.
     """
-    device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    payload = read_checkpoint(path)
+    device = resolve_device(device)
+    payload = read_model_checkpoint(path)
     name = payload["model"]["name"]
     if expected_name is not None and name != expected_name:
         raise ValueError(f"{latest_checkpoint(path)} holds a {name!r} model, not {expected_name!r}")

@@ -33,26 +33,17 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from vp2.models.base import (
-    NUM_CONTEXT,
-    NUM_FUTURE,
-    LossOutput,
-    PerceptualLoss,
-    TrainingDefaults,
-    VideoPredictor,
-    frame_losses,
-    gaussian_kl,
-    reparameterize,
-)
+from vp2.models.base import LossOutput, ModelConfig, TrainingDefaults, VideoPredictor
+from vp2.models.layers import FrameLoss, gaussian_kl, per_frame, reparameterize
 
 
 @dataclasses.dataclass
-class StructVRNNConfig:
+class StructVRNNConfig(ModelConfig):
     """Architecture and loss settings of Struct-VRNN (defaults: the paper's model).
 
+    ``image_size`` must be a multiple of 4 (keypoint maps are ``image_size / 4``).
+
     Attributes:
-        action_dim: Action size ``A``.
-        image_size: Frame side; a multiple of 4 (keypoint maps are ``image_size / 4``).
         num_keypoints: ``K``.
         filters: Channels of the first detector stage (then ×2, ×4).
         decoder_filters: Channels of the decoder's first conv (then /2, /4).
@@ -63,12 +54,8 @@ class StructVRNNConfig:
         recon_weight: Weight of the image reconstruction MSE.
         coord_weight: Weight of the keypoint prediction MSE.
         kl_weight: Weight of the KL term (the paper found 1e-4 best for control).
-        num_context: Context frames.
-        num_future: Predicted frames.
     """
 
-    action_dim: int = 5
-    image_size: int = 64
     num_keypoints: int = 64
     filters: int = 32
     decoder_filters: int = 256
@@ -79,14 +66,9 @@ class StructVRNNConfig:
     recon_weight: float = 10.0
     coord_weight: float = 1.0
     kl_weight: float = 1e-3
-    num_context: int = NUM_CONTEXT
-    num_future: int = NUM_FUTURE
 
     def __post_init__(self) -> None:
-        if self.image_size % 4:
-            raise ValueError(
-                f"struct_vrnn: image_size must be a multiple of 4, got {self.image_size}"
-            )
+        self.check_image_size("struct_vrnn", 4)
 
 
 def coordinate_grid(size: int, like: Tensor) -> Tensor:
@@ -201,13 +183,13 @@ class KeypointDynamics(nn.Module):
 
 
 class StructVRNN(VideoPredictor):
-    """Struct-VRNN; see the module docstring."""
+    """Struct-VRNN: keypoints detected in every frame, a variational RNN on the keypoints,
+    and a decoder that renders them back onto the first frame; see the module docstring."""
 
     name: ClassVar[str] = "struct_vrnn"
     config_class: ClassVar[type] = StructVRNNConfig
-    training_defaults: ClassVar[TrainingDefaults] = TrainingDefaults(
-        optimizer="adam", lr=3e-4, betas=(0.9, 0.999), eps=1e-8, grad_clip=None
-    )
+    #: Adam 3e-4, betas (0.9, 0.999), eps 1e-8, no gradient clipping.
+    training_defaults: ClassVar[TrainingDefaults] = TrainingDefaults()
 
     def __init__(self, config: StructVRNNConfig):
         super().__init__(config)
@@ -220,8 +202,7 @@ class StructVRNN(VideoPredictor):
 
     def _detect(self, frames: Tensor) -> Tensor:
         """``(B, T, 3, H, W)`` -> ``(B, T, K, 3)``."""
-        b, t = frames.shape[:2]
-        return self.detector(frames.flatten(0, 1).contiguous()).unflatten(0, (b, t))
+        return per_frame(self.detector, frames)
 
     def _render(self, keypoints: Tensor, first_keypoints: Tensor, first_frame: Tensor) -> Tensor:
         """Keypoints ``(B, T, K, 3)``, ``k_0 (B, K, 3)`` and ``x_0 (B, 3, H, W)`` -> frames
@@ -243,13 +224,8 @@ class StructVRNN(VideoPredictor):
 
     # ----------------------------------------------------------------- training
 
-    def compute_loss(
-        self,
-        frames: Tensor,
-        actions: Tensor,
-        generator: torch.Generator,
-        perceptual: PerceptualLoss | None = None,
-        perceptual_weight: float = 0.0,
+    def _compute_loss(
+        self, frames: Tensor, actions: Tensor, generator: torch.Generator, frame_loss: FrameLoss
     ) -> LossOutput:
         """See :meth:`VideoPredictor.compute_loss` and the module docstring.
 
@@ -258,7 +234,7 @@ class StructVRNN(VideoPredictor):
         cfg = self.config
         keypoints = self._detect(frames)  # (B, T, K, 3)
         recon = self._render(keypoints, keypoints[:, 0], frames[:, 0])  # (B, T, 3, H, W)
-        mse, rec, lp = frame_losses(recon, frames, perceptual, perceptual_weight)
+        losses = frame_loss(recon, frames)
 
         k = keypoints.detach().flatten(2)  # (B, T, 3K)
         e, _ = self.dynamics.step_core(k[:, :-1], actions.to(k.dtype))  # (B, T - 1, hidden)
@@ -268,10 +244,10 @@ class StructVRNN(VideoPredictor):
         k_hat = self.dynamics.predict_keypoints(e, z)  # (B, T - 1, 3K)
         coord = ((k_hat.float() - k[:, 1:].float()) ** 2).mean()
         kl = gaussian_kl(mu_q.flatten(1), logvar_q.flatten(1), mu_p.flatten(1), logvar_p.flatten(1))
-        loss = cfg.recon_weight * rec.mean() + cfg.coord_weight * coord + cfg.kl_weight * kl
-        metrics = {"mse": mse.mean().detach(), "coord": coord.detach(), "kl": kl.detach()}
-        if lp is not None:
-            metrics["perceptual"] = lp.mean().detach()
+        loss = (
+            cfg.recon_weight * losses.total.mean() + cfg.coord_weight * coord + cfg.kl_weight * kl
+        )
+        metrics = losses.metrics(coord=coord.detach(), kl=kl.detach())
         return LossOutput(loss=loss, metrics=metrics, predictions=recon[:, 1:].clamp(0, 1))
 
     # ----------------------------------------------------------------- inference

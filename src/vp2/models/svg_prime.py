@@ -29,28 +29,25 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from vp2.models.base import (
-    NUM_CONTEXT,
-    NUM_FUTURE,
-    LossOutput,
-    PerceptualLoss,
-    TrainingDefaults,
-    VideoPredictor,
-    frame_losses,
+from vp2.models.base import LossOutput, ModelConfig, TrainingDefaults, VideoPredictor
+from vp2.models.layers import (
+    FrameLoss,
+    context_skips,
     gaussian_kl,
     init_normal_,
+    per_frame,
     reparameterize,
     scaled,
 )
 
 
 @dataclasses.dataclass
-class SVGPrimeConfig:
+class SVGPrimeConfig(ModelConfig):
     """Architecture and loss settings of SVG′ (defaults: the paper's M = K = 1 model).
 
+    ``image_size`` must be a multiple of 8 (the LSTMs run at ``image_size / 8``).
+
     Attributes:
-        action_dim: Action size ``A``.
-        image_size: Frame side; a multiple of 8 (the LSTMs run at ``image_size / 8``).
         rnn_size: LSTM channels before scaling by ``m`` (512 in the paper).
         m: LSTM size multiplier (the paper's M).
         k: Encoder/decoder channel multiplier (the paper's K).
@@ -58,13 +55,9 @@ class SVGPrimeConfig:
         z_dim: Channels of the latent map ``z``.
         predictor_layers: ConvLSTM layers of the frame predictor.
         latent_layers: ConvLSTM layers of the prior and of the posterior.
-        beta: KL weight.
-        num_context: Context frames.
-        num_future: Predicted frames.
+        beta: KL weight in ``loss = Σ_t [MSE_t + beta · KL_t]``.
     """
 
-    action_dim: int = 5
-    image_size: int = 64
     rnn_size: int = 512
     m: float = 1.0
     k: float = 1.0
@@ -73,19 +66,15 @@ class SVGPrimeConfig:
     predictor_layers: int = 2
     latent_layers: int = 1
     beta: float = 1e-4
-    num_context: int = NUM_CONTEXT
-    num_future: int = NUM_FUTURE
 
     def __post_init__(self) -> None:
-        if self.image_size % 8:
-            raise ValueError(
-                f"svg_prime: image_size must be a multiple of 8, got {self.image_size}"
-            )
+        self.check_image_size("svg_prime", 8)
         if self.m <= 0 or self.k <= 0:
             raise ValueError(f"svg_prime: m and k must be > 0, got m={self.m}, k={self.k}")
 
     @property
     def hidden(self) -> int:
+        """LSTM channels: ``rnn_size · m``, rounded."""
         return scaled(self.rnn_size * self.m)
 
 
@@ -189,13 +178,16 @@ class ConvLSTM(nn.Module):
 
 
 class SVGPrime(VideoPredictor):
-    """SVG′ with size multipliers; see the module docstring."""
+    """SVG′ with size multipliers.
+
+    A VGG encoder and decoder with U-Net skips around convolutional LSTMs at 1/8 resolution;
+    see the module docstring.
+    """
 
     name: ClassVar[str] = "svg_prime"
     config_class: ClassVar[type] = SVGPrimeConfig
-    training_defaults: ClassVar[TrainingDefaults] = TrainingDefaults(
-        optimizer="adam", lr=3e-4, betas=(0.9, 0.999), eps=1e-8, grad_clip=None
-    )
+    #: Adam 3e-4, betas (0.9, 0.999), eps 1e-8, no gradient clipping.
+    training_defaults: ClassVar[TrainingDefaults] = TrainingDefaults()
 
     def __init__(self, config: SVGPrimeConfig):
         super().__init__(config)
@@ -207,29 +199,16 @@ class SVGPrime(VideoPredictor):
         self.posterior = ConvLSTM(g, hidden, z, config.latent_layers, gaussian=True)
         init_normal_(self)
 
-    def _encode(self, frames: Tensor) -> tuple[Tensor, list[Tensor]]:
-        """Encodes ``(B, T, 3, H, W)`` frames in one batch: ``h (B, T, g, h, w)`` and skips."""
-        b, t = frames.shape[:2]
-        # Contiguous: layouts change the convolutions' rounding (and a channels-last batch
-        # crashed oneDNN's backward in FitVid's encoder on torch 2.13 CPU).
-        h, skips = self.encoder(frames.flatten(0, 1).contiguous())
-        return h.unflatten(0, (b, t)), [s.unflatten(0, (b, t)) for s in skips]
-
     @staticmethod
     def _tile(action: Tensor, like: Tensor) -> Tensor:
         return action[:, :, None, None].expand(-1, -1, *like.shape[2:])  # (B, A, h, w)
 
-    def compute_loss(
-        self,
-        frames: Tensor,
-        actions: Tensor,
-        generator: torch.Generator,
-        perceptual: PerceptualLoss | None = None,
-        perceptual_weight: float = 0.0,
+    def _compute_loss(
+        self, frames: Tensor, actions: Tensor, generator: torch.Generator, frame_loss: FrameLoss
     ) -> LossOutput:
         """See :meth:`VideoPredictor.compute_loss`; teacher forcing over all ``T - 1`` steps."""
         t_total, context = frames.shape[1], self.config.num_context
-        h, skips = self._encode(frames)  # (B, T, g, h, w)
+        h, skips = per_frame(self.encoder, frames)  # (B, T, g, h, w)
         pred_state = prior_state = post_state = None
         h_preds, kls = [], []
         for t in range(1, t_total):
@@ -240,27 +219,20 @@ class SVGPrime(VideoPredictor):
             h_pred, _, pred_state = self.predictor(inp, pred_state)
             h_preds.append(h_pred)
             kls.append(gaussian_kl(mu_q, logvar_q, mu_p, logvar_p))
-        # Skips come from the last frame seen so far within the context (SVG's rule): frame
-        # t - 1 while t - 1 < context, then the last context frame, so no target leaks in.
-        src = torch.tensor(
-            [min(t - 1, context - 1) for t in range(1, t_total)], device=frames.device
-        )
-        step_skips = [s.index_select(1, src).flatten(0, 1) for s in skips]
+        step_skips = context_skips(skips, context)  # SVG's rule: no target leaks in
         preds = self.decoder(torch.stack(h_preds, 1).flatten(0, 1), step_skips)
         preds = preds.unflatten(0, frames.shape[:1] + (t_total - 1,))  # (B, T - 1, 3, H, W)
-        mse, recon, lp = frame_losses(preds, frames[:, 1:], perceptual, perceptual_weight)
+        losses = frame_loss(preds, frames[:, 1:])
         kl = torch.stack(kls)  # (T - 1,)
-        loss = recon.sum() + self.config.beta * kl.sum()
-        metrics = {"mse": mse.mean().detach(), "kl": kl.sum().detach()}
-        if lp is not None:
-            metrics["perceptual"] = lp.mean().detach()
+        loss = losses.total.sum() + self.config.beta * kl.sum()
+        metrics = losses.metrics(kl=kl.sum().detach())
         return LossOutput(loss=loss, metrics=metrics, predictions=preds)
 
     def _predict(
         self, context_frames: Tensor, actions: Tensor, generator: torch.Generator
     ) -> Tensor:
         context = self.config.num_context
-        h_ctx, skips = self._encode(context_frames)  # (B, C, g, h, w)
+        h_ctx, skips = per_frame(self.encoder, context_frames)  # (B, C, g, h, w)
         last_skips = [s[:, -1] for s in skips]
         pred_state = prior_state = post_state = None
         # Context: the posterior sees the true next frame; prior and predictor states warm up.

@@ -23,6 +23,8 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import Tensor
 
+from vp2 import spec
+
 #: ``term(frames (N, T, C, H, W)) -> cost (N,)``.
 CostTerm = Callable[[Tensor], Tensor]
 #: ``classifier(images (M, C, H, W)) -> success logits (M,) or (M, 1)``.
@@ -30,9 +32,6 @@ FrameClassifier = Callable[[Tensor], Tensor]
 #: ``distance(images (M, C, H, W), goals (M, C, H, W)) -> distances (M,)`` (e.g. LPIPS).
 PerceptualDistance = Callable[[Tensor, Tensor], Tensor]
 
-#: RoboDesk weights of SPEC §6.
-ROBODESK_PIXEL_WEIGHT = 0.5
-ROBODESK_CLASSIFIER_WEIGHT = 10.0
 #: Ensemble disagreement weight λ of SPEC §5.
 ENSEMBLE_DISAGREEMENT_WEIGHT = 0.01
 
@@ -214,8 +213,8 @@ def robodesk_cost(
     """SPEC §6 RoboDesk cost: ``0.5 × pixel SSE + 10 × (-Σ_t success logit)``."""
     return WeightedCost(
         [
-            (ROBODESK_PIXEL_WEIGHT, PixelSSE(goal)),
-            (ROBODESK_CLASSIFIER_WEIGHT, ClassifierCost(classifier, max_batch_size)),
+            (spec.ROBODESK_PIXEL_WEIGHT, PixelSSE(goal)),
+            (spec.ROBODESK_CLASSIFIER_WEIGHT, ClassifierCost(classifier, max_batch_size)),
         ]
     )
 

@@ -27,15 +27,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-#: Per-action-dimension noise scales σ of SPEC §5. RoboDesk actions are (dx, dy, dz, wrist,
-#: gripper); tabletop actions are (dx, dy, dz, gripper), and the gripper is never sampled there.
-DEFAULT_SIGMA: dict[str, tuple[float, ...]] = {
-    "robodesk": (0.5, 0.5, 0.5, 0.1, 0.1),
-    "tabletop": (0.5, 0.5, 0.5, 0.0),
-}
-
-#: Correlation coefficient β of the benchmark's correlated-noise sampler (SPEC §5).
-DEFAULT_BETA = 0.5
+from vp2 import spec
 
 ACTION_LOW = -1.0
 ACTION_HIGH = 1.0
@@ -69,7 +61,7 @@ def broadcast_std(std: Tensor | Sequence[float] | float, mean: Tensor) -> Tensor
 
 
 def correlated_noise_std(
-    horizon: int, sigma: Tensor | Sequence[float], beta: float = DEFAULT_BETA
+    horizon: int, sigma: Tensor | Sequence[float], beta: float = spec.BETA
 ) -> Tensor:
     """Exact per-step standard deviation of :class:`CorrelatedNoiseSampler` noise.
 
@@ -151,7 +143,7 @@ class CorrelatedNoiseSampler(ActionSampler):
             :class:`GaussianSampler`.
     """
 
-    def __init__(self, beta: float = DEFAULT_BETA) -> None:
+    def __init__(self, beta: float = spec.BETA) -> None:
         if not 0.0 <= beta < 1.0:
             raise ValueError(f"beta must be in [0, 1), got {beta}")
         self.beta = float(beta)

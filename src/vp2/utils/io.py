@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import tempfile
 from collections.abc import Iterator
@@ -48,3 +49,17 @@ def remove_stale_temporaries(directory: str | os.PathLike[str]) -> int:
         tmp.unlink(missing_ok=True)
         count += 1
     return count
+
+
+def json_safe(obj: Any) -> Any:
+    """``obj`` made strict JSON: NaN and infinities -> ``None``, dict keys as strings, tuples
+    as lists, paths as strings. The one cleaner every JSON writer of the package uses."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj

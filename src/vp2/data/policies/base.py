@@ -50,6 +50,12 @@ class ScriptedPolicy(abc.ABC):
         return None
 
 
+#: Action-noise σ of the training data (SPEC §3). Tabletop: 0.05 on every action dimension but
+#: the gripper. RoboDesk: 0.1 on even and 0.2 on odd trajectories of a stream (half and half).
+TABLETOP_NOISE = (0.05, 0.05, 0.05, 0.0)
+ROBODESK_NOISE = (0.1, 0.2)
+
+
 class NoisyPolicy(ScriptedPolicy):
     """Adds independent Gaussian noise to a scripted policy's actions, then clips to [-1, 1].
 

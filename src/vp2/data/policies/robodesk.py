@@ -24,8 +24,7 @@ import math
 
 import numpy as np
 
-from vp2.data.policies import ROBODESK_NOISE
-from vp2.data.policies.base import NoisyPolicy, ScriptedPolicy
+from vp2.data.policies.base import ROBODESK_NOISE, NoisyPolicy, ScriptedPolicy
 from vp2.envs.base import Env
 from vp2.envs.robodesk import TASKS, RoboDeskEnv
 

@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from vp2.data.policies.base import ScriptedPolicy
-from vp2.envs._tabletop_sim import (
+from vp2.envs._tabletop_world import (
     OBJECT_FOOTPRINT,
     OBJECT_REST_HEIGHT,
     OBJECT_SIZES,

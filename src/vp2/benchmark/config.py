@@ -1,0 +1,215 @@
+"""The configuration of a benchmark run: :class:`RunConfig`, one field per ``vp2 run`` flag.
+
+Reading a run's configuration (``config.yaml``, :func:`vp2.benchmark.run_dir.read_config`)
+does not load torch: the planner's names are imported only to validate a config or build its
+planner settings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Any
+
+from vp2 import spec
+from vp2.envs import ENV_TASKS, split_name
+from vp2.utils.executors.base import EXECUTORS
+
+if TYPE_CHECKING:
+    from vp2.planning.planner import PlannerConfig
+
+AGENTS: tuple[str, ...] = ("planning", "random")
+#: Fields of :class:`RunConfig` that change what a trial does. A resumed run must keep them;
+#: the others (which trials, how many processes, where) may change between sessions.
+PROTOCOL_FIELDS: tuple[str, ...] = (
+    "model",
+    "model_args",
+    "agent",
+    "suite",
+    "optimizer",
+    "num_samples",
+    "gamma",
+    "num_iterations",
+    "cost",
+    "num_steps",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """Everything a benchmark run needs; one field per ``vp2 run`` flag.
+
+    Attributes:
+        model: Model spec (``--model``): ``simulator``, ``repeat_last_frame``,
+            ``NAME:CHECKPOINT``, ``package.module:factory`` or a YAML file
+            (:mod:`vp2.benchmark.model_spec`). Ignored by ``agent="random"``.
+        out: Run directory (``--out``).
+        model_args: Keyword arguments of the model factory (``--model-arg KEY=VALUE``,
+            repeatable; values parsed as YAML, see
+            :func:`~vp2.benchmark.model_spec.parse_model_args`).
+        agent: ``"planning"`` (visual foresight with the model) or ``"random"`` (uniform
+            random actions, no model) (``--agent``).
+        suite: Task suite file (``--suite``); ``None``: the suite shipped with vp2.
+        tasks: Task categories or environment names to run (``--tasks``); empty: every task
+            of the suite.
+        num_instances: First ``k`` instances of each task (``--num-instances``); ``None``:
+            all.
+        seeds: Control-run seeds (``--seeds``); SPEC §4 asks for at least 3.
+        optimizer: ``mppi`` (SPEC), ``cem``, ``cem_gd``, ``lbfgs`` (``--optimizer``).
+        num_samples: Planner samples per step (``--num-samples``); ``None``: SPEC (200,
+            800 for open_slide/open_drawer). Other values are for tests and ablations.
+        gamma: MPPI inverse temperature (``--gamma``).
+        num_iterations: Planner iterations per step (``--num-iterations``); ``None``: the
+            optimizer's default.
+        cost: ``auto`` | ``spec`` | ``pixel_only`` (``--cost``), see
+            :data:`vp2.planning.planner.CostMode`.
+        num_steps: Control steps per trial (``--num-steps``); SPEC: 15. Fewer only for tests.
+        stop_on_success: End a trial at its first success (``--stop-on-success``); the
+            outcome is the same, later frames are not recorded.
+        workers: Trial processes (``--workers``); 1 runs trials in this process. With
+            ``executor="ray"``: actors, each with its own simulator and model replica.
+        executor: Where trials run (``--executor``): ``"local"`` (worker processes on this
+            machine) or ``"ray"`` (actors on a Ray cluster, docs/scale-out.md). Not a protocol
+            field: a run may be resumed under another executor.
+        address: Ray cluster to use (``--address``): ``"auto"``, ``HOST:PORT``, or ``None``
+            for a private instance on this machine.
+        num_cpus_per_worker: CPUs each Ray actor reserves (``--num-cpus-per-worker``).
+        num_gpus_per_worker: GPUs each Ray actor reserves for its model replica, fractions
+            allowed (``--num-gpus-per-worker``).
+        device: Torch device of models and planning (``--device``); ``None``: CUDA if
+            available, else CPU.
+        max_retries: Extra attempts of a crashed trial (``--max-retries``).
+        resume: Continue an existing run directory, running only missing trials
+            (``--resume``).
+        retry_errors: With ``resume``, also re-run trials recorded as errors
+            (``--retry-errors``).
+        save_gifs: Write a GIF per trial: execution next to the goal (``--no-gifs`` off).
+        save_predictions: Also a GIF of the chosen plan's predicted frames per planning step
+            (``--save-predictions``; one extra model call per step).
+        oracle: Run directory (or ``trials.jsonl``) of a simulator-oracle run, to normalise
+            the scores (``--oracle``); ``None``: the shipped oracle
+            (:mod:`vp2.benchmark.shipped_oracle`), if there is one.
+        progress: Show a progress bar with ETA (``--no-progress`` off).
+    """
+
+    model: str
+    out: str
+    model_args: dict[str, Any] = dataclasses.field(default_factory=dict)
+    agent: str = "planning"
+    suite: str | None = None
+    tasks: tuple[str, ...] = ()
+    num_instances: int | None = None
+    seeds: tuple[int, ...] = tuple(range(spec.MIN_SEEDS))
+    optimizer: str = "mppi"
+    num_samples: int | None = None
+    gamma: float = spec.GAMMA
+    num_iterations: int | None = None
+    cost: str = "auto"
+    num_steps: int = spec.NUM_CONTROL_STEPS
+    stop_on_success: bool = False
+    workers: int = 1
+    executor: str = "local"
+    address: str | None = None
+    num_cpus_per_worker: float = 1.0
+    num_gpus_per_worker: float = 0.0
+    device: str | None = None
+    max_retries: int = 1
+    resume: bool = False
+    retry_errors: bool = False
+    save_gifs: bool = True
+    save_predictions: bool = False
+    oracle: str | None = None
+    progress: bool = True
+
+    def validate(self) -> None:
+        """Raises ``ValueError`` naming the first invalid field."""
+        from vp2.planning.optimizers import OPTIMIZERS
+        from vp2.planning.planner import COST_MODES
+
+        if self.agent not in AGENTS:
+            raise ValueError(f"agent must be one of {AGENTS}, got {self.agent!r}")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(
+                f"optimizer must be one of {tuple(OPTIMIZERS)}, got {self.optimizer!r}"
+            )
+        if self.cost not in COST_MODES:
+            raise ValueError(f"cost must be one of {COST_MODES}, got {self.cost!r}")
+        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError(f"seeds must be distinct and non-empty, got {self.seeds}")
+        if self.num_steps < 2:
+            raise ValueError(f"num_steps must be >= 2, got {self.num_steps}")
+        if self.num_instances is not None and self.num_instances < 1:
+            raise ValueError(f"num_instances must be >= 1, got {self.num_instances}")
+        if self.workers < 1 or self.max_retries < 0:
+            raise ValueError("workers must be >= 1 and max_retries >= 0")
+        if self.executor not in EXECUTORS:
+            raise ValueError(f"executor must be one of {EXECUTORS}, got {self.executor!r}")
+        if self.address is not None and self.executor != "ray":
+            raise ValueError("address is for executor='ray'")
+        if self.num_cpus_per_worker < 0 or self.num_gpus_per_worker < 0:
+            raise ValueError("num_cpus_per_worker and num_gpus_per_worker must be >= 0")
+        if self.retry_errors and not self.resume:
+            raise ValueError("retry_errors needs resume")
+        for name in self.tasks:
+            if name not in ENV_TASKS:
+                split_name(name)
+        if self.agent == "planning":
+            # The optimizer validates its own settings (num_samples, gamma, ...): build one per
+            # environment now, so that a bad value stops the run before any trial starts.
+            from vp2.planning.planner import build_optimizer
+
+            for env, env_tasks in ENV_TASKS.items():
+                build_optimizer(f"{env}/{env_tasks[0]}", self.planner())
+
+    def planner(self) -> PlannerConfig:
+        """The planner settings of the run's planning agents."""
+        from vp2.planning.planner import PlannerConfig
+
+        return PlannerConfig(
+            optimizer=self.optimizer,
+            num_samples=self.num_samples,
+            gamma=self.gamma,
+            num_iterations=self.num_iterations,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (tuples as lists), as written to ``config.yaml``."""
+        d = dataclasses.asdict(self)
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RunConfig:
+        """Inverse of :meth:`to_dict`; unknown keys are an error."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(data) - names
+        if unknown:
+            raise ValueError(f"unknown RunConfig field(s) {sorted(unknown)}")
+        data = dict(data)
+        for key in ("tasks", "seeds"):
+            if key in data:
+                data[key] = tuple(data[key])
+        return cls(**data)
+
+    def deviations(self) -> list[str]:
+        """How this run departs from the SPEC protocol (shown with the results)."""
+        out = []
+        if self.num_steps != spec.NUM_CONTROL_STEPS:
+            out.append(f"num_steps={self.num_steps} (SPEC: {spec.NUM_CONTROL_STEPS})")
+        if self.num_samples is not None:
+            out.append(
+                f"num_samples={self.num_samples} (SPEC: {spec.NUM_SAMPLES}, "
+                f"{spec.LARGE_NUM_SAMPLES} for open_slide/open_drawer)"
+            )
+        if self.agent == "planning":
+            if self.optimizer != "mppi":
+                out.append(f"optimizer={self.optimizer} (SPEC: mppi)")
+            if self.gamma != spec.GAMMA and self.optimizer == "mppi":
+                out.append(f"gamma={self.gamma} (SPEC: {spec.GAMMA})")
+            if self.num_iterations is not None:
+                out.append(f"num_iterations={self.num_iterations} (SPEC: {spec.NUM_ITERATIONS})")
+            if self.cost == "pixel_only":
+                out.append("cost=pixel_only (SPEC: RoboDesk uses its success classifier)")
+        if len(self.seeds) < spec.MIN_SEEDS:
+            out.append(
+                f"{len(self.seeds)} seed(s) (SPEC: at least {spec.MIN_SEEDS} control runs)"
+            )
+        return out

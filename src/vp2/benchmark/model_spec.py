@@ -1,0 +1,295 @@
+"""The model to benchmark from a string (``--model``): a plugin, a YAML file or a checkpoint.
+
+A model spec is one of
+
+* a built-in name: ``simulator`` (alias ``oracle``), ``repeat_last_frame``;
+* ``NAME:CHECKPOINT`` with a registered model name, e.g. ``svg_prime:runs/svg`` (a trained
+  vp2 model, :func:`vp2.models.load_model_spec`);
+* ``package.module:factory``: any importable callable returning a
+  :class:`vp2.models.base.VideoPredictionModel`, called with the run's model arguments;
+* a ``.yaml``/``.yml`` file whose mapping has a ``_target_`` (``package.module:factory`` or
+  ``package.module.factory``) and the factory's keyword arguments; nested mappings with their
+  own ``_target_`` are built first (as Hydra's ``instantiate``). Run arguments override the
+  file's.
+
+A factory may also declare any of the parameters ``env`` (``"robodesk"``/``"tabletop"``),
+``action_dim`` and ``device``; the runner fills those it does not get explicitly, so one spec
+serves both environments (the runner builds one model per environment).
+
+Modules are imported with the current directory on the import path (appended, so an installed
+package of the same name wins), so ``--model mymodule:make_model`` works from the folder of
+``mymodule.py``. :func:`resolve_model` is the one place a spec becomes a model: it returns it
+wrapped by :func:`vp2.models.contract.checked` (checked calls, the interface's defaults).
+:func:`parse_model_args` reads the model arguments of the command line (``--model-arg``).
+
+Resolving a spec without building it (:func:`check_spec`) does not load torch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import inspect
+import os
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import yaml
+
+from vp2.utils.kv import parse_key_values, yaml_value
+
+if TYPE_CHECKING:
+    import torch
+
+#: Built-in model names and their factories.
+BUILTIN_MODELS: dict[str, str] = {
+    "simulator": "vp2.models.simulator:SimulatorModel",
+    "oracle": "vp2.models.simulator:SimulatorModel",
+    "repeat_last_frame": "vp2.models.baselines:RepeatLastFrame",
+}
+#: Keyword arguments the runner supplies to factories that declare them.
+CONTEXT_ARGS: tuple[str, ...] = ("env", "action_dim", "device")
+#: Where the model interface is documented (named in the messages of model failures).
+MODEL_DOCS = 'docs/benchmark.md, "Plugins"'
+
+
+class PluginError(ValueError):
+    """A model spec that cannot be resolved or built, with the reason."""
+
+
+def resolve_target(target: str) -> Callable[..., Any]:
+    """Imports ``package.module:attr`` (or ``package.module.attr``; ``attr`` may be dotted).
+
+    Raises:
+        PluginError: naming the module or attribute that is missing.
+    """
+    if ":" in target:
+        module_name, _, attr = target.partition(":")
+    else:
+        module_name, _, attr = target.rpartition(".")
+    if not module_name or not attr:
+        raise PluginError(f"target {target!r}: expected 'package.module:factory'")
+    _add_cwd_to_path()
+    try:
+        obj: Any = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise PluginError(
+            f"target {target!r}: cannot import module {module_name!r} ({exc})"
+        ) from exc
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise PluginError(
+                f"target {target!r}: module {module_name!r} has no attribute {attr!r}"
+            )
+        obj = getattr(obj, part)
+    if not callable(obj):
+        raise PluginError(f"target {target!r} is not callable")
+    return obj
+
+
+def _add_cwd_to_path() -> None:
+    """Lets ``mymodule:factory`` resolve from the folder of ``mymodule.py``, as ``python``
+    would (a console script like ``vp2`` has its own folder on ``sys.path``, not the current
+    one). Appended: an installed package of the same name still wins."""
+    cwd = os.getcwd()
+    if cwd not in sys.path and "" not in sys.path:
+        sys.path.append(cwd)
+
+
+def instantiate(node: Any) -> Any:
+    """Builds every mapping with a ``_target_`` in ``node``, innermost first."""
+    if isinstance(node, Mapping):
+        built = {k: instantiate(v) for k, v in node.items() if k != "_target_"}
+        if "_target_" in node:
+            return resolve_target(str(node["_target_"]))(**built)
+        return built
+    if isinstance(node, list):
+        return [instantiate(v) for v in node]
+    return node
+
+
+def read_yaml_spec(path: str | Path) -> dict[str, Any]:
+    """A YAML model file as a mapping with a ``_target_``.
+
+    Raises:
+        PluginError: if the file is not a mapping with a ``_target_``.
+    """
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise PluginError(f"{path}: cannot read the model file ({exc})") from exc
+    if not isinstance(data, dict) or "_target_" not in data:
+        raise PluginError(
+            f"{path}: a model file must be a mapping with a `_target_` key "
+            "(e.g. `_target_: mypkg.models:build`) and the factory's arguments"
+        )
+    return data
+
+
+def _is_yaml(spec: str) -> bool:
+    return spec.endswith((".yaml", ".yml"))
+
+
+def _checkpoint_model_name(spec: str) -> str | None:
+    from vp2.models.registry import MODELS
+
+    name, sep, _ = spec.partition(":")
+    return name if sep and name in MODELS else None
+
+
+def describe_spec(spec: str) -> str:
+    """What kind of spec this is: ``builtin``, ``checkpoint``, ``yaml`` or ``factory``."""
+    if spec in BUILTIN_MODELS:
+        return "builtin"
+    if _is_yaml(spec):
+        return "yaml"
+    if _checkpoint_model_name(spec) is not None:
+        return "checkpoint"
+    return "factory"
+
+
+def check_spec(spec: str) -> None:
+    """Resolves a spec without building anything (fails fast, before workers start).
+
+    Raises:
+        PluginError: if the factory cannot be imported or the file read.
+    """
+    kind = describe_spec(spec)
+    if kind == "builtin":
+        resolve_target(BUILTIN_MODELS[spec])
+    elif kind == "yaml":
+        resolve_target(str(read_yaml_spec(spec)["_target_"]))
+    elif kind == "checkpoint":
+        _, path = spec.split(":", 1)
+        if not Path(path).exists():
+            raise PluginError(f"model {spec!r}: no checkpoint at {path}")
+    else:
+        if ":" not in spec:
+            raise PluginError(
+                f"model {spec!r}: expected a built-in name ({', '.join(BUILTIN_MODELS)}), "
+                "NAME:CHECKPOINT, package.module:factory or a .yaml file"
+            )
+        resolve_target(spec)
+
+
+def _accepted(factory: Callable[..., Any]) -> set[str]:
+    try:
+        params = inspect.signature(factory).parameters
+    except (TypeError, ValueError):
+        return set()
+    return {
+        name
+        for name, p in params.items()
+        if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    }
+
+
+def load_plugin(
+    spec: str, args: Mapping[str, Any] | None = None, context: Mapping[str, Any] | None = None
+) -> Any:
+    """Builds the object a spec names.
+
+    Args:
+        spec: Built-in name, ``package.module:factory`` or a YAML file (see the module doc).
+            ``NAME:CHECKPOINT`` specs are loaded by :func:`resolve_model` only.
+        args: Keyword arguments for the factory (override a YAML file's).
+        context: Arguments passed only if the factory declares a parameter of that name and
+            ``args`` does not set it.
+
+    Raises:
+        PluginError: if the spec cannot be resolved.
+    """
+    args = dict(args or {})
+    if _is_yaml(spec):
+        data = read_yaml_spec(spec)
+        target = str(data.pop("_target_"))
+        args = {**instantiate(data), **args}
+    else:
+        target = BUILTIN_MODELS.get(spec, spec)
+        if ":" not in target:
+            raise PluginError(
+                f"model {spec!r}: expected a built-in name ({', '.join(BUILTIN_MODELS)}), "
+                "NAME:CHECKPOINT, package.module:factory or a .yaml file"
+            )
+    factory = resolve_target(target)
+    accepted = _accepted(factory)
+    for key, value in (context or {}).items():
+        if key in accepted and key not in args:
+            args[key] = value
+    return factory(**args)
+
+
+def resolve_model(
+    spec: str,
+    args: Mapping[str, Any] | None = None,
+    *,
+    env: str,
+    action_dim: int,
+    device: str | torch.device,
+    check: bool = True,
+) -> Any:
+    """The model a spec names, for one environment, on ``device``.
+
+    ``torch.nn.Module`` models are moved to ``device`` and put in eval mode. With ``check``
+    (default) the model is returned as :func:`vp2.models.contract.checked` makes it: every
+    ``predict`` call checked, ``name``/``max_batch_size`` defaulted, ``generator``/``grad``
+    passed only to a ``predict`` that declares them.
+
+    Raises:
+        PluginError: the spec cannot be resolved.
+        TypeError: (``check``) the object lacks a required attribute of the interface.
+    """
+    import torch
+
+    from vp2.models.contract import checked
+
+    name = _checkpoint_model_name(spec) if not _is_yaml(spec) else None
+    if name is not None:
+        from vp2.models.registry import load_model_spec
+
+        # Model arguments of a checkpoint override inference settings of its config
+        # (e.g. MCVD's sampling_steps); load_model refuses architecture changes.
+        try:
+            return load_model_spec(spec, device=device, overrides=dict(args or {}))
+        except ValueError as err:
+            raise PluginError(f"model {spec!r}: {err}") from err
+    model = load_plugin(
+        spec, args, context={"env": env, "action_dim": action_dim, "device": str(device)}
+    )
+    if isinstance(model, torch.nn.Module):
+        model = model.to(device).eval()
+    return checked(model) if check else model
+
+
+def model_identity(spec: str, args: Mapping[str, Any] | None, model: Any) -> dict[str, Any]:
+    """JSON-able identity of a built model for result records."""
+    import torch
+
+    from vp2.models.contract import unwrap
+
+    name = getattr(model, "name", None)  # a CheckedModel's default: the class name
+    model = unwrap(model)
+    cls = type(model)
+    identity: dict[str, Any] = {
+        "spec": spec,
+        "args": dict(args or {}),
+        "name": name if isinstance(name, str) and name else cls.__name__,
+        "class": f"{cls.__module__}.{cls.__qualname__}",
+    }
+    config = getattr(model, "config", None)
+    if config is not None and dataclasses.is_dataclass(config):
+        identity["config"] = dataclasses.asdict(config)
+    if isinstance(model, torch.nn.Module):
+        identity["num_parameters"] = sum(p.numel() for p in model.parameters())
+    return identity
+
+
+def parse_model_args(items: Sequence[str]) -> dict[str, Any]:
+    """``["num_workers=2", "name=foo"]`` -> ``{"num_workers": 2, "name": "foo"}``.
+
+    Values are parsed as YAML scalars/lists (``2`` is an int, ``[1, 2]`` a list,
+    ``true`` a bool); anything else stays a string.
+    """
+    return {k: yaml_value(v) for k, v in parse_key_values(items, "model argument").items()}

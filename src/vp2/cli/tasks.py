@@ -1,0 +1,65 @@
+"""``vp2 tasks generate|list|show``: the task suite (docs/benchmark.md)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from vp2.cli._common import add_executor_flags, make_executor_from_args
+
+NAME = 'tasks'
+HELP = 'the task suite: generate, list, show'
+DESCRIPTION = None
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    from vp2.data import suite as suite_lib
+
+    if args.tasks_command == "generate":
+        counts = dict(suite_lib.SUITE_COUNTS)
+        if args.tasks:
+            counts = {t: counts[t] for t in args.tasks}
+        if args.count:
+            counts = dict.fromkeys(counts, args.count)
+        with make_executor_from_args(args) as executor:
+            suite = suite_lib.generate_suite(counts, seed=args.seed, workers=args.workers,
+                                             executor=executor)
+        out = Path(args.out)
+        suite.save(out)
+        print(f"task suite: {out} ({len(suite)} instances)")
+        return 0
+    suite = suite_lib.TaskSuite.load(args.suite)
+    if args.tasks_command == "list":
+        for task in suite.tasks:
+            insts = suite.for_task(task)
+            steps = [len(i.actions) for i in insts]
+            print(f"{task:34s} {len(insts):3d} instances  scripted steps to goal: "
+                  f"min {min(steps)} / mean {sum(steps) / len(steps):.1f} / max {max(steps)}")
+        print(f"total: {len(suite)} instances")
+        return 0
+    # show
+    from vp2.data.suite_view import suite_contact_sheet
+
+    png = suite_contact_sheet(suite, args.task, args.out, max_instances=args.max)
+    print(f"contact sheet: {png}")
+    return 0
+
+
+def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Adds the ``vp2 tasks`` arguments to ``p``."""
+    tsub = p.add_subparsers(dest="tasks_command", required=True)
+    g = tsub.add_parser("generate", help="generate a task suite with fixed seeds")
+    g.add_argument("--out", default="task_suite.npz")
+    g.add_argument("--seed", type=int, default=2023)
+    g.add_argument("--tasks", nargs="+", help="only these task categories")
+    g.add_argument("--count", type=int, help="instances per category (default: SPEC §2)")
+    g.add_argument("--workers", type=int, default=None)
+    add_executor_flags(g)
+    lst = tsub.add_parser("list", help="instances per task category")
+    lst.add_argument("--suite", help="suite file (default: the shipped suite)")
+    show = tsub.add_parser("show", help="contact sheet of start and goal images")
+    show.add_argument("task", help="task category, e.g. robodesk/push_red")
+    show.add_argument("--suite", help="suite file (default: the shipped suite)")
+    show.add_argument("--out", default=None, help="PNG path (default: outputs/tasks/<task>.png)")
+    show.add_argument("--max", type=int, default=12, help="instances to show")
+    return p

@@ -1,0 +1,183 @@
+"""The ``vp2 train-classifier`` command: train, evaluate and save RoboDesk success classifiers.
+
+:func:`configure_parser` and :func:`run_from_args` serve ``vp2 train-classifier``; :func:`main`
+serves ``python -m vp2.classifiers.command`` (the same arguments). See ``docs/benchmark.md``
+(Success classifiers) for the measured accuracy and cost.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+
+from vp2.classifiers.checkpoint import save_classifier
+from vp2.classifiers.data import LABELS
+from vp2.classifiers.networks import ARCHS
+from vp2.classifiers.registry import (
+    ASSETS_DIR,
+    METRICS_FILE,
+    checkpoint_name,
+    short_task,
+    update_metrics,
+)
+from vp2.classifiers.train import ClassifierTrainConfig, train_task
+from vp2.data.storage import DatasetError
+from vp2.envs import ROBODESK_TASKS
+
+NAME = 'train-classifier'
+HELP = 'train RoboDesk success classifiers'
+DESCRIPTION = 'Train the per-task RoboDesk success classifiers of the planning cost on a collected dataset (docs/benchmark.md).'
+
+
+def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Adds the ``vp2 train-classifier`` arguments to ``p``."""
+    p.add_argument(
+        "--data", required=True, type=Path, help="dataset directory (vp2 collect robodesk)"
+    )
+    p.add_argument(
+        "--tasks", nargs="+", default=None, help="RoboDesk tasks, e.g. push_red (default: all 7)"
+    )
+    p.add_argument(
+        "--arch",
+        nargs="+",
+        choices=ARCHS,
+        default=["ours"],
+        help="networks to train: ours (shipped) and/or paper (for comparison)",
+    )
+    p.add_argument("--steps", type=int, default=3000, help="gradient steps of ours (paper: 3000)")
+    p.add_argument(
+        "--paper-steps",
+        type=int,
+        default=None,
+        help="gradient steps of the paper's network (default: --steps)",
+    )
+    p.add_argument("--batch-size", type=int, default=64, help="frames per gradient step")
+    p.add_argument(
+        "--shift", type=int, default=2, help="random-shift augmentation in pixels (0: off)"
+    )
+    p.add_argument(
+        "--pos-weight",
+        default=None,
+        help="positive-class loss weight: a number or 'balanced' (default: none)",
+    )
+    p.add_argument(
+        "--label",
+        choices=sorted(LABELS),
+        default="success",
+        help="frame label: success (the simulator's success flag) or dense (the paper's: "
+        "dense reward summed over the step's 50 repeats >= 30)",
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    p.add_argument(
+        "--ship",
+        action="store_true",
+        help="write ours into the package (vp2/assets/classifiers) with metrics.json; "
+        "the paper's checkpoints (50 MB each) go to --out",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="run directory (default: runs/classifiers); with --ship it holds only the "
+        "paper's checkpoints",
+    )
+    return p
+
+
+def _command_line(args: argparse.Namespace) -> str:
+    parts = ["vp2 train-classifier", f"--data {args.data}"]
+    if args.tasks:
+        parts.append("--tasks " + " ".join(args.tasks))
+    parts.append("--arch " + " ".join(args.arch))
+    parts.append(f"--steps {args.steps}")
+    if args.paper_steps is not None:
+        parts.append(f"--paper-steps {args.paper_steps}")
+    parts += [f"--batch-size {args.batch_size}", f"--shift {args.shift}", f"--seed {args.seed}"]
+    if args.label != "success":
+        parts.append(f"--label {args.label}")
+    if args.pos_weight is not None:
+        parts.append(f"--pos-weight {args.pos_weight}")
+    if args.threads is not None:
+        parts.append(f"--threads {args.threads}")
+    if args.ship:
+        parts.append("--ship")
+    if args.out is not None:
+        parts.append(f"--out {args.out}")
+    return " ".join(parts)
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    """Runs ``vp2 train-classifier``: trains, evaluates and saves per task and arch.
+
+    Prints one table row per (task, arch): held-out frames, positives, accuracy, precision,
+    recall. Returns 0.
+    """
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    pos_weight: float | str | None = args.pos_weight
+    if pos_weight not in (None, "balanced"):
+        pos_weight = float(pos_weight)
+    tasks = [short_task(t) for t in (args.tasks or ROBODESK_TASKS)]
+    run_dir = Path(args.out) if args.out is not None else Path("runs/classifiers")
+    metrics_dir = ASSETS_DIR if args.ship else run_dir
+    command = _command_line(args)
+    print("| task | arch | held-out frames (positive) | accuracy | precision | recall | file |")
+    print("|---|---|---|---|---|---|---|")
+    for task in tasks:
+        for arch in args.arch:
+            steps = args.paper_steps if arch == "paper" and args.paper_steps else args.steps
+            config = ClassifierTrainConfig(
+                arch=arch,
+                steps=steps,
+                batch_size=args.batch_size,
+                shift=args.shift,
+                pos_weight=pos_weight,
+                seed=args.seed,
+                device=args.device,
+                label=args.label,
+            )
+            model, meta = train_task(args.data, task, config, command)
+            directory = ASSETS_DIR if args.ship and arch == "ours" else run_dir
+            path = save_classifier(directory / checkpoint_name(task, arch), model, meta)
+            entry = {k: v for k, v in meta.items() if k != "data"}
+            entry["data"] = {k: meta["data"][k] for k in ("dataset", "train", "valid")}
+            entry["file"] = str(path.name if directory == metrics_dir else path)
+            entry["file_bytes"] = path.stat().st_size
+            update_metrics(metrics_dir / METRICS_FILE, arch, task, entry)
+            m = meta["heldout"]
+            print(
+                f"| {task} | {arch} | {m['frames']} ({m['positives']}) | {_fmt(m['accuracy'])} "
+                f"| {_fmt(m['precision'])} | {_fmt(m['recall'])} | {path} |",
+                flush=True,
+            )
+    print(f"metrics: {metrics_dir / METRICS_FILE}")
+    return 0
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f}"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m vp2.classifiers.command ...`` (same arguments as ``vp2 train-classifier``)."""
+    parser = configure_parser(
+        argparse.ArgumentParser(prog="vp2 train-classifier", description=__doc__.splitlines()[0])
+    )
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return run_from_args(args)
+    except (ValueError, DatasetError, FileNotFoundError) as exc:
+        print(f"vp2 train-classifier: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,62 @@
+"""A per-process cache of environments rebuilt from their metadata.
+
+Building an environment is slow (a MuJoCo model, textures, a renderer), and a process that plans
+or runs trials uses the same few environments again and again: the simulator oracle's worker
+processes (:mod:`vp2.models.simulator`) and the benchmark's trial workers each keep one
+:class:`EnvCache`.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+from typing import Any
+
+from vp2.envs.base import Env
+from vp2.envs.factory import make_env_from_metadata
+
+
+class EnvCache:
+    """Environments rebuilt from :meth:`vp2.envs.base.Env.serialize` metadata, least recently
+    used evicted (and closed) beyond ``size``.
+
+    Two calls with equal metadata and equal keyword arguments get the same environment; the
+    caller resets it to whatever state it needs.
+
+    Args:
+        size: Environments kept alive (>= 1).
+    """
+
+    def __init__(self, size: int) -> None:
+        if size < 1:
+            raise ValueError(f"size must be >= 1, got {size}")
+        self.size = int(size)
+        self._envs: collections.OrderedDict[str, Env] = collections.OrderedDict()
+
+    def get(self, env_meta: dict[str, Any], **make_kwargs: Any) -> Env:
+        """The cached environment of ``env_meta``, built on first use.
+
+        Args:
+            env_meta: The environment's :meth:`~vp2.envs.base.Env.serialize` output.
+            **make_kwargs: Overrides for :func:`vp2.envs.make_env_from_metadata` (e.g.
+                ``observation_size=None``); part of the cache key.
+        """
+        key = json.dumps([env_meta, make_kwargs], sort_keys=True)
+        if key in self._envs:
+            self._envs.move_to_end(key)
+            return self._envs[key]
+        env = make_env_from_metadata(env_meta, **make_kwargs)
+        self._envs[key] = env
+        while len(self._envs) > self.size:
+            _, old = self._envs.popitem(last=False)
+            old.close()
+        return env
+
+    def __len__(self) -> int:
+        return len(self._envs)
+
+    def close(self) -> None:
+        """Closes and forgets every cached environment (the cache stays usable)."""
+        for env in self._envs.values():
+            env.close()
+        self._envs.clear()

@@ -1,0 +1,291 @@
+"""The planning agent: visual foresight with a video prediction model (SPEC §4–§6).
+
+The agent joins a model, a cost and an optimizer. At every planning step it builds the
+batched objective ::
+
+    objective(candidates (N, 10, A)) -> scores (N,)
+        = -cost(model.predict(last 2 observations, cat[last executed action, candidates]))
+
+and lets the optimizer (MPPI by default) maximise it, warm-started from its previous plan
+shifted by one step. The optimizer knows nothing about the model; the model knows nothing
+about the cost. The cost and the optimizer of a task come from :mod:`vp2.planning.planner`.
+
+:class:`RandomActions` is the baseline agent without a model: uniform random actions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from vp2.classifiers.registry import CLASSIFIERS, ClassifierRegistry
+from vp2.models.contract import VideoPredictionModel, checked, predict_in_chunks, unwrap
+from vp2.planning.optimizers import shift_plan
+from vp2.planning.planner import (
+    COST_MODES,
+    CostMode,
+    PlannerConfig,
+    build_cost,
+    build_optimizer,
+    planner_settings,
+)
+from vp2.utils.tensors import images_to_float
+
+
+@dataclasses.dataclass
+class Observation:
+    """What a trial shows an agent at a control step.
+
+    Attributes:
+        step: Index of the control step about to be taken (``1 .. num_steps - 1``).
+        frames: All frames of the trial so far, ``(step + 1, H, W, 3)`` uint8, oldest first.
+        last_action: ``(A,)`` the action executed at the previous step.
+        env_meta: Metadata of the trial's environment (to rebuild it).
+        state: ``(S,)`` current simulator state. Only models that declare
+            ``needs_simulator_state`` (the oracle) ever receive it.
+    """
+
+    step: int
+    frames: np.ndarray
+    last_action: np.ndarray
+    env_meta: dict[str, Any]
+    state: np.ndarray
+
+
+@runtime_checkable
+class Agent(Protocol):
+    """What a :class:`vp2.benchmark.trial.ControlTrial` drives.
+
+    Attributes:
+        name: Identity in results (``"planning"``, ``"random_actions"``).
+        action_dim: ``A``; must equal the environment's.
+        image_size: Side of the frames the trial renders for it.
+        cost_kind: :data:`vp2.planning.planner.CostKind` of the current trial (set by ``reset``).
+    """
+
+    name: str
+    action_dim: int
+    image_size: int
+    cost_kind: str
+
+    def reset(self, task: str, goal_image: np.ndarray, seed: int) -> None:
+        """Starts a trial: the task, its ``(H, W, 3)`` uint8 goal image and the trial seed."""
+
+    def act(self, observation: Observation) -> tuple[np.ndarray, dict[str, Any]]:
+        """The action ``(A,)`` to execute now and an info dict (for records)."""
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-able settings of the current trial (planner, cost), for records."""
+
+
+@runtime_checkable
+class SimulatorStateModel(Protocol):
+    """A model that plans from the true simulator state (the oracle) rather than from images.
+
+    The planning agent calls ``set_simulator_state`` before every planning step when
+    ``needs_simulator_state`` is true. Learned models must never implement this.
+    """
+
+    needs_simulator_state: bool
+
+    def set_simulator_state(self, env_meta: dict[str, Any], state: np.ndarray) -> None: ...
+
+
+def frames_to_tensor(frames: np.ndarray, device: torch.device) -> Tensor:
+    """``(..., H, W, 3)`` uint8 -> ``(..., 3, H, W)`` float32 in [0, 1] on ``device``."""
+    # A copy: suite arrays are read-only, which torch warns about. The channel axis moves by a
+    # view, so the frames keep their (..., H, W, 3) memory layout.
+    return images_to_float(np.array(frames, dtype=np.uint8), device).movedim(-1, -3)
+
+
+def tensor_to_frames(x: Tensor) -> np.ndarray:
+    """``(..., 3, H, W)`` float in [0, 1] -> ``(..., H, W, 3)`` uint8."""
+    return x.detach().movedim(-3, -1).clamp(0, 1).mul(255).round().to(torch.uint8).cpu().numpy()
+
+
+def _model_device(model: Any) -> torch.device | None:
+    model = unwrap(model)
+    if isinstance(model, torch.nn.Module):
+        for p in model.parameters():
+            return p.device
+    return None
+
+
+class PlanningAgent:
+    """Visual-foresight agent: replans with the model and optimizer at every control step.
+
+    Called by :class:`vp2.benchmark.trial.ControlTrial`: :meth:`reset` at the start of a
+    trial, then :meth:`act` at every control step after the first (the trial executes the
+    zero action first, so that two context frames exist).
+
+    Args:
+        model: Any :class:`vp2.models.contract.VideoPredictionModel`; passed through
+            :func:`vp2.models.contract.checked` (wrapped unless it already checks its calls).
+        planner: Optimizer settings (SPEC defaults per task where ``None``).
+        cost_mode: See :data:`CostMode`.
+        classifiers: Where RoboDesk classifiers are looked up.
+        device: Where frames, plans and costs live (default: the model's device, else CPU).
+        record_predictions: Also predict the chosen plan at every step (one extra model call
+            of batch 1) and return its frames in the info dict, for the plan GIF.
+    """
+
+    name = "planning"
+
+    def __init__(
+        self,
+        model: VideoPredictionModel,
+        planner: PlannerConfig | None = None,
+        cost_mode: CostMode = "auto",
+        classifiers: ClassifierRegistry = CLASSIFIERS,
+        device: str | torch.device | None = None,
+        record_predictions: bool = False,
+    ) -> None:
+        self.model = checked(model)
+        self.planner = planner or PlannerConfig()
+        if cost_mode not in COST_MODES:
+            raise ValueError(
+                f"unknown cost mode {cost_mode!r}; choose one of {', '.join(COST_MODES)}"
+            )
+        self.cost_mode: CostMode = cost_mode
+        self.classifiers = classifiers
+        self.device = (
+            torch.device(device)
+            if device is not None
+            else (_model_device(model) or torch.device("cpu"))
+        )
+        self.record_predictions = record_predictions
+        self.action_dim = int(model.action_dim)
+        self.image_size = int(model.image_size)
+        self.horizon = int(model.num_future)
+        self.num_context = int(model.num_context)
+        self.cost_kind: str = "none"
+        self._task: str | None = None
+        self._settings: dict[str, Any] = {}
+
+    def describe(self) -> dict[str, Any]:
+        return {"agent": self.name, "planner": self._settings, "cost": self.cost_kind}
+
+    def reset(self, task: str, goal_image: np.ndarray, seed: int) -> None:
+        """Starts a trial: builds the optimizer and cost for ``task``, seeds the generators."""
+        self._task = task
+        self._settings = planner_settings(task, self.planner)
+        self.optimizer = build_optimizer(task, self.planner)
+        self.optimizer.reset()
+        goal = frames_to_tensor(goal_image, self.device)  # (3, H, W)
+        self.cost, self.cost_kind = build_cost(
+            task, goal, self.cost_mode, self.classifiers, self.device
+        )
+        # Independent streams: the planner's samples must not shift when the model draws more
+        # or less noise, and recording predictions must not change the plans.
+        planner_seed, model_seed, record_seed = np.random.SeedSequence(seed).generate_state(3)
+        self.generator = torch.Generator().manual_seed(int(planner_seed))
+        self.model_generator = torch.Generator().manual_seed(int(model_seed))
+        self._record_seed = int(record_seed)
+        self.plan = torch.zeros(self.horizon, self.action_dim, device=self.device)  # (H, A)
+
+    def objective(self, context: Tensor, last_action: Tensor) -> Callable[[Tensor], Tensor]:
+        """The optimizer's objective at one planning step.
+
+        Args:
+            context: ``(num_context, 3, H, W)`` the last observations in [0, 1].
+            last_action: ``(A,)`` the last executed action.
+
+        Returns:
+            ``candidates (N, T, A) -> scores (N,)``.
+        """
+
+        def objective(candidates: Tensor) -> Tensor:
+            n = candidates.shape[0]
+            frames = context.expand(n, *context.shape)  # (N, C, 3, H, W)
+            previous = last_action.to(candidates).expand(n, 1, -1)  # (N, 1, A)
+            actions = torch.cat([previous, candidates], dim=1)  # (N, C - 1 + T, A)
+            predicted = predict_in_chunks(
+                self.model, frames, actions.float(), generator=self.model_generator
+            )  # (N, T, 3, H, W)
+            return self.cost.score(predicted.to(self.device)).to(candidates.dtype)  # (N,)
+
+        return objective
+
+    def act(self, observation: Observation) -> tuple[np.ndarray, dict[str, Any]]:
+        """Plans one step; returns the first action of the plan and the optimizer's report."""
+        if self._task is None:
+            raise RuntimeError("PlanningAgent.act called before reset()")
+        if len(observation.frames) < self.num_context:
+            raise ValueError(
+                f"the agent needs {self.num_context} context frames, the trial gave "
+                f"{len(observation.frames)}"
+            )
+        if getattr(self.model, "needs_simulator_state", False):
+            self.model.set_simulator_state(observation.env_meta, observation.state)
+        context = frames_to_tensor(observation.frames[-self.num_context :], self.device)
+        last_action = torch.as_tensor(
+            observation.last_action, dtype=torch.float32, device=self.device
+        )
+        objective = self.objective(context, last_action)
+        plan, report = self.optimizer.optimize(objective, self.plan, self.generator)  # (T, A)
+        plan = plan.detach()
+        info: dict[str, Any] = {
+            "best_score": report.best_score,
+            "plan_score": report.plan_score,
+            "num_evaluations": report.num_evaluations,
+        }
+        if self.record_predictions:
+            info["predicted_frames"] = self._predict_plan(context, last_action, plan)
+        action = plan[0].cpu().double().numpy()
+        self.plan = shift_plan(plan)
+        return action, info
+
+    def _predict_plan(self, context: Tensor, last_action: Tensor, plan: Tensor) -> np.ndarray:
+        """``(T, H, W, 3)`` uint8 predicted frames of one plan (for the plan GIF)."""
+        generator = torch.Generator().manual_seed(self._record_seed)
+        actions = torch.cat([last_action[None], plan.to(last_action)])[None]  # (1, C - 1 + T, A)
+        with torch.no_grad():
+            frames = self.model.predict(context[None], actions, generator=generator, grad=False)
+        return tensor_to_frames(frames[0])
+
+
+class RandomActions:
+    """Baseline agent: uniform random actions in ``[-1, 1]^A``, ignoring every observation.
+
+    It has the planning agent's interface (``reset``/``act``, see :class:`PlanningAgent`) but no
+    model. Its actions depend only on the trial seed given to :meth:`reset`.
+
+    Args:
+        action_dim: ``A`` of the environment.
+        image_size: Side of the frames the trial renders (for the execution GIF).
+    """
+
+    name = "random_actions"
+    cost_kind = "none"
+
+    def __init__(self, action_dim: int, image_size: int = 64) -> None:
+        self.action_dim = int(action_dim)
+        self.image_size = int(image_size)
+        self._rng = np.random.default_rng(0)
+
+    def describe(self) -> dict[str, Any]:
+        """Identity for result records."""
+        return {"agent": self.name}
+
+    def reset(self, task: str, goal_image: np.ndarray, seed: int) -> None:
+        """Starts a trial: reseeds the generator from the trial seed."""
+        self._rng = np.random.default_rng(seed)
+
+    def act(self, observation: Any) -> tuple[np.ndarray, dict[str, Any]]:
+        """A uniform random action ``(A,)``; the observation is ignored."""
+        return self._rng.uniform(-1.0, 1.0, self.action_dim), {}
+
+
+def check_agent_for_env(agent: Agent, action_dim: int, task: str) -> None:
+    """Raises a clear error when an agent's action size does not fit a task."""
+    if agent.action_dim != action_dim:
+        raise ValueError(
+            f"{task} has {action_dim}-D actions but the {agent.name} agent (model "
+            f"{getattr(getattr(agent, 'model', None), 'name', '-')}) has action_dim "
+            f"{agent.action_dim}; a model is trained for one environment"
+        )

@@ -1,0 +1,123 @@
+"""The run directories a report shows: read, labelled, and normalised by an oracle."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from vp2.benchmark.results import Summary, read_trials, summarize
+from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
+
+PathLike = str | os.PathLike[str]
+
+
+@dataclasses.dataclass
+class RunView:
+    """A run directory as the report sees it.
+
+    Attributes:
+        run_dir: The directory.
+        label: Model label (unique among the report's runs).
+        config: The ``config`` mapping of ``config.yaml`` (empty if the file is missing).
+        deviations: Its departures from the SPEC protocol.
+        records: Trial records.
+        summary: Scores, normalised when an oracle run is known.
+        is_oracle: Whether the run is a simulator-oracle run.
+        oracle_source: Where the normalisation came from (``None``: not normalised).
+    """
+
+    run_dir: Path
+    label: str
+    config: dict[str, Any]
+    deviations: list[str]
+    records: list[dict[str, Any]]
+    summary: Summary
+    is_oracle: bool
+    oracle_source: str | None = None
+
+
+def model_label(config: Mapping[str, Any]) -> str:
+    """A run's model as the report names it: the model spec, or the random baseline."""
+    if config.get("agent") == "random":
+        return "random actions"
+    spec = str(config.get("model") or "unknown model")
+    args = config.get("model_args") or {}
+    if args:
+        spec += " (" + ", ".join(f"{k}={v}" for k, v in sorted(args.items())) + ")"
+    return spec
+
+
+def _read_config(run_dir: Path) -> tuple[dict[str, Any], list[str]]:
+    path = run_dir / "config.yaml"
+    if not path.is_file():
+        return {}, []
+    data = yaml.safe_load(path.read_text()) or {}
+    return dict(data.get("config") or {}), list(data.get("spec_deviations") or [])
+
+
+def load_runs(
+    run_dirs: Sequence[PathLike], labels: Sequence[str | None] | None = None
+) -> list[RunView]:
+    """Reads the runs, labels them uniquely and normalises their scores.
+
+    ``labels``: one per run directory (``None`` or empty: the model spec, :func:`model_label`).
+
+    An oracle run among ``run_dirs`` normalises every other run; otherwise a run's own
+    ``oracle`` setting is used if that directory exists, else the shipped oracle.
+
+    Raises:
+        FileNotFoundError: a directory that is not a run (no ``trials.jsonl``).
+    """
+    if labels is not None and len(labels) != len(run_dirs):
+        raise ValueError(
+            f"{len(labels)} label(s) for {len(run_dirs)} run director(ies): give one per run "
+            "('-' keeps a run's default label)"
+        )
+    runs = []
+    for i, d in enumerate(run_dirs):
+        run_dir = Path(d)
+        if not (run_dir / "trials.jsonl").is_file():
+            raise FileNotFoundError(f"{run_dir}: no trials.jsonl (not a vp2 run directory)")
+        config, deviations = _read_config(run_dir)
+        records = read_trials(run_dir)
+        is_oracle = is_oracle_config(config)
+        runs.append(
+            RunView(
+                run_dir,
+                (labels[i] if labels else None) or model_label(config),
+                config,
+                deviations,
+                records,
+                summarize(records),
+                is_oracle,
+            )
+        )
+    counts: dict[str, int] = {}
+    for r in runs:
+        counts[r.label] = counts.get(r.label, 0) + 1
+    for r in runs:
+        if counts[r.label] > 1:
+            r.label = f"{r.label} [{r.run_dir.name}]"
+    oracle = next((r for r in runs if r.is_oracle), None)
+    shipped = None
+    if any(not r.is_oracle for r in runs) and oracle is None:
+        shipped = load_shipped_oracle()
+    for r in runs:
+        if r.is_oracle:
+            continue
+        if oracle is not None:
+            r.oracle_source = f"oracle run {oracle.label} ({oracle.run_dir})"
+            r.summary = summarize(r.records, oracle.records, oracle_source=r.oracle_source)
+        elif r.config.get("oracle") and Path(r.config["oracle"]).exists():
+            r.summary = summarize_run(r.records, oracle_run=r.config["oracle"])
+            r.oracle_source = r.summary.oracle_source
+        else:
+            # Without a shipped oracle the section says so once, not every run's notes.
+            r.summary = summarize_run(r.records, shipped=shipped, note_missing=False)
+            r.oracle_source = r.summary.oracle_source
+    return runs

@@ -1,0 +1,167 @@
+"""The package's shape, read from its source: pipeline stages import only leftwards, no cycles,
+no oversized files.
+
+Stages (``docs/architecture.md``): envs -> data -> models -> classifiers -> planning -> training
+-> benchmark -> metrics / report -> cli. ``vp2.utils``, ``vp2.spec`` and ``vp2._quiet`` are shared
+by every stage and import no stage. Imports inside functions count: a lazy import is still a
+dependency.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+PACKAGE = SRC / "vp2"
+
+STAGES: dict[str, int] = {
+    "envs": 0,
+    "data": 1,
+    "models": 2,
+    "classifiers": 3,
+    "planning": 4,
+    "training": 5,
+    "benchmark": 6,
+    "metrics": 7,
+    "report": 7,
+    "cli": 8,
+}
+SHARED = {"utils", "spec", "_quiet"}
+MAX_LINES = 500
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(SRC).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def modules() -> dict[str, Path]:
+    return {module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def imported_modules(name: str, path: Path, known: set[str]) -> set[str]:
+    """The vp2 modules ``name`` imports: ``from a.b import c`` counts ``a.b.c`` when that is a
+    module, else ``a.b``."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*anchor, *([base] if base else [])])
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in known else base
+                       for a in node.names]
+        else:
+            continue
+        for target in targets:
+            while target and target not in known:
+                target = target.rpartition(".")[0]
+            if target.startswith("vp2") and target != name:
+                found.add(target)
+    return found
+
+
+def graph() -> dict[str, set[str]]:
+    mods = modules()
+    known = set(mods)
+    return {name: imported_modules(name, path, known) for name, path in mods.items()}
+
+
+def stage(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else None
+
+
+def test_stages_cover_every_subpackage():
+    top = {stage(m) for m in modules()} - {None}
+    assert top <= set(STAGES) | SHARED, f"new top-level module(s) without a stage: {top - set(STAGES) - SHARED}"
+
+
+def test_no_backward_imports():
+    bad = []
+    for mod, deps in graph().items():
+        s = stage(mod)
+        for dep in deps:
+            d = stage(dep)
+            if d is None:  # `vp2` itself (registers the envs): envs-level
+                d = "envs"
+            if d in SHARED:
+                continue
+            if s in SHARED:
+                bad.append(f"{mod} (shared) imports {dep}")
+            elif s is not None and STAGES[d] > STAGES[s]:
+                bad.append(f"{mod} ({s}) imports {dep} ({d}), a later stage")
+    assert not bad, "\n".join(bad)
+
+
+def test_no_import_cycles():
+    g = graph()
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles: list[list[str]] = []
+    counter = [0]
+
+    def visit(v: str) -> None:  # Tarjan's strongly connected components
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on_stack.add(v)
+        for w in g.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for v in sorted(g):
+        if v not in index:
+            visit(v)
+    assert not cycles, "import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
+
+
+def test_no_oversized_source_files():
+    big = {m: n for m, p in modules().items() if (n := len(p.read_text().splitlines())) > MAX_LINES}
+    assert not big, f"over {MAX_LINES} lines: {big}"
+
+
+def test_the_checker_sees_a_backward_import(tmp_path):
+    """The import reader must resolve what the rules are about; a planted backward import and a
+    planted cycle are found."""
+    known = {"vp2.envs.base", "vp2.benchmark.runner", "vp2.envs", "vp2.benchmark"}
+    f = tmp_path / "base.py"
+    f.write_text("def f():\n    from vp2.benchmark.runner import run_benchmark\n")
+    assert imported_modules("vp2.envs.base", f, known) == {"vp2.benchmark.runner"}
+    g = tmp_path / "__init__.py"
+    g.write_text("from . import base\nfrom .base import thing\n")
+    assert imported_modules("vp2.envs", g, known) == {"vp2.envs.base"}
+
+
+@pytest.mark.parametrize("mod", ["vp2.benchmark.config", "vp2.benchmark.model_spec"])
+def test_light_modules_do_not_import_torch(mod):
+    """Reading a run's config (and resolving ``--model`` strings) must not load torch."""
+    import subprocess
+    import sys
+
+    if mod not in modules():
+        pytest.skip(f"{mod} does not exist")
+    code = f"import sys, {mod}; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
