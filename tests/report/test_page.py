@@ -143,6 +143,17 @@ def test_labels_given_by_the_user_replace_the_model_spec(tmp_path):
         write_report([runs["repeat"], runs["random"]], tmp_path / "x.html", labels=["a"])
 
 
+def test_runs_table_counts_seeds_and_wraps_long_paths(tmp_path):
+    runs = small_runs()
+    html = write_report([runs["repeat"], runs["random"]], tmp_path / "r.html").read_text()
+    table = html.split("<h2>Runs")[1].split("</table>")[0]
+    assert '<div class="wide"><table class="runs">' in table
+    assert re.findall(r'<td class="num" title="seeds ([\d, ]+)">(\d+)</td>', table) == [
+        ("0, 1", "2"), ("0", "1")
+    ]
+    assert "table.runs code{word-break:break-all}" in html
+
+
 def test_study_section_appears_with_metrics(tmp_path):
     files = [
         write_metrics_file(tmp_path / "m" / "repeat.json", 300.0, 0.3, 0.7),

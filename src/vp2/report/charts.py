@@ -8,6 +8,7 @@ anywhere without a network. Every mark carries its value in a ``data-*`` attribu
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from html import escape
 
@@ -169,6 +170,35 @@ def bar_chart(
     return "".join(parts)
 
 
+#: Estimated width of one 11-12 px sans-serif character, and the height of a text line (px).
+_CHAR_WIDTH = 6.5
+_LINE_HEIGHT = 14
+
+
+def _free_label_y(
+    label: str,
+    x: float,
+    anchor: str,
+    y: float,
+    placed: list[tuple[float, float, float, float]],
+    y_limits: tuple[float, float],
+) -> float:
+    """The baseline nearest ``y`` at which ``label``'s box overlaps no box in ``placed`` (which
+    it then joins), within ``y_limits``."""
+    w = _CHAR_WIDTH * len(label)
+    x0, x1 = (x - w, x) if anchor == "end" else (x, x + w)
+    lo, hi = y_limits
+    for step in range(0, 40):
+        shift = (step + 1) // 2 * (1 if step % 2 else -1) * 12  # 0, +12, -12, +24, ...
+        cand = min(max(y + shift, lo), hi)
+        box = (x0, x1, cand - 11, cand + 2)
+        if all(box[1] <= b[0] or box[0] >= b[1] or box[3] <= b[2] or box[2] >= b[3] for b in placed):
+            placed.append(box)
+            return cand
+    placed.append((x0, x1, y - 11, y + 2))
+    return y
+
+
 def scatter_plot(
     points: Sequence[tuple[str, float, float]],
     *,
@@ -194,9 +224,13 @@ def scatter_plot(
         The SVG markup; points are ``<circle class="pt">`` with ``data-label``, ``data-x``
         and ``data-y``.
     """
-    left, top, right, bottom = 60, 28, 24, 44
+    left, right, bottom = 60, 24, 44
     pw, ph = size
-    width, height = left + pw + right, top + ph + bottom
+    width = left + pw + right
+    # The caption wraps to the figure's width instead of running off its right edge.
+    title_lines = textwrap.wrap(title, max(10, int((width - 8) / _CHAR_WIDTH))) if title else []
+    top = 28 + _LINE_HEIGHT * max(0, len(title_lines) - 1)
+    height = top + ph + bottom
     xs = [p[1] for p in points if math.isfinite(p[1])]
     # Pad the data range so that no point (or its label) sits on the frame.
     pad = 0.08 * ((max(xs) - min(xs)) or abs(xs[0]) or 1.0) if xs else 0.0
@@ -216,8 +250,10 @@ def scatter_plot(
         f'<svg class="chart scatter" width="{width}" '
         f'height="{height}" viewBox="0 0 {width} {height}" role="img" {_FONT}>'
     ]
-    if title:
-        parts.append(f'<text x="{left}" y="16" font-weight="bold">{escape(title)}</text>')
+    for n, line in enumerate(title_lines):
+        parts.append(
+            f'<text x="4" y="{16 + n * _LINE_HEIGHT}" font-weight="bold">{escape(line)}</text>'
+        )
     for tick in nice_ticks(y_lo, y_hi, 5):
         if tick > y_hi + 1e-9:
             continue
@@ -239,14 +275,18 @@ def scatter_plot(
         f'<text transform="translate(14,{top + ph / 2:.0f}) rotate(-90)" text-anchor="middle">'
         f"{escape(y_label)}</text>"
     )
+    placed: list[tuple[float, float, float, float]] = []
     for i, (label, x, yv) in enumerate(points):
         if not (math.isfinite(x) and math.isfinite(yv)):
             continue
         cx, cy = px(x), py(yv)
-        # Labels point into the plot: left of points in its right half, below points at its top.
+        # Labels point into the plot: left of points in its right half, below points at its top;
+        # a label that would overlap one already drawn moves down or up a line at a time.
         right_half = cx > left + pw / 2
         tx, anchor = (cx - 7, "end") if right_half else (cx + 7, "start")
-        ty = cy + 16 if cy < top + 16 else cy - 6
+        ty = _free_label_y(
+            label, tx, anchor, cy + 16 if cy < top + 16 else cy - 6, placed, (top + 11, top + ph)
+        )
         parts.append(
             f'<circle class="pt" data-label="{escape(label)}" data-x="{x!r}" data-y="{yv!r}" '
             f'cx="{cx:.2f}" cy="{cy:.2f}" r="5" fill="{colour(i)}">'

@@ -142,12 +142,14 @@ def runs_table(runs: Sequence[RunView]) -> str:
             f"<tr><td><b>{escape(r.label)}</b></td><td><code>{escape(str(r.run_dir))}</code></td>"
             f"<td>{escape(str(agent))}</td><td>{escape(planner)}</td>"
             f'<td class="num">{finished}</td><td class="num">{errors}</td>'
-            f"<td>{escape(', '.join(map(str, seeds)))}</td><td>{deviations}</td></tr>"
+            f'<td class="num" title="seeds {escape(", ".join(map(str, seeds)))}">{len(seeds)}</td>'
+            f"<td>{deviations}</td></tr>"
         )
     return (
-        "<table><thead><tr><th>model</th><th>run directory</th><th>agent</th><th>planner</th>"
-        "<th>trials</th><th>errors</th><th>seeds</th><th>not the SPEC protocol</th></tr></thead>"
-        f"<tbody>{''.join(rows)}</tbody></table>"
+        '<div class="wide"><table class="runs"><thead><tr><th>model</th><th>run directory</th>'
+        "<th>agent</th><th>planner</th><th>trials</th><th>errors</th><th>seeds</th>"
+        "<th>not the SPEC protocol</th></tr></thead>"
+        f"<tbody>{''.join(rows)}</tbody></table></div>"
     )
 
 
@@ -236,5 +238,6 @@ h4 .sub{display:inline;font-weight:normal} .score{font-size:1.3em;font-weight:bo
 border-radius:4px;max-width:100%} figure.ok{border-color:#2a9d4b} figure.fail{border-color:#c44}
 img{image-rendering:pixelated;display:block;max-width:100%} img.plan{margin-top:6px}
 .warn{color:#a40} .scatters{display:flex;flex-wrap:wrap;gap:8px} ul.notes{color:#555}
-code{background:#f3f3f3;padding:0 3px}
+code{background:#f3f3f3;padding:0 3px} .wide{max-width:100%;overflow-x:auto}
+table.runs{table-layout:auto;width:100%} table.runs code{word-break:break-all}
 """

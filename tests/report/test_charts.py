@@ -1,0 +1,38 @@
+"""The report's SVG charts: captions fit, point labels do not overlap."""
+
+from __future__ import annotations
+
+import re
+
+from vp2.report.charts import _CHAR_WIDTH, scatter_plot
+
+
+def _labels(svg: str) -> list[tuple[float, float, str, str]]:
+    pattern = r'<text x="([\d.]+)" y="([\d.]+)" text-anchor="(start|end)" font-size="11">([^<]*)'
+    return [(float(x), float(y), a, t) for x, y, a, t in re.findall(pattern, svg)]
+
+
+def test_long_scatter_title_wraps_within_the_figure():
+    title = "RoboDesk: success versus FVD over all tasks and seeds (lower FVD is better)"
+    svg = scatter_plot([("a", 1.0, 0.5)], x_label="FVD", title=title)
+    width = float(re.search(r'width="(\d+)"', svg).group(1))
+    lines = re.findall(r'<text x="4" y="\d+" font-weight="bold">([^<]*)', svg)
+    assert len(lines) == 2 and " ".join(lines) == title
+    assert all(4 + _CHAR_WIDTH * len(line) <= width for line in lines)
+    # The plot moved down by a line to make room.
+    assert re.search(r'<rect x="60" y="42" ', svg)
+
+
+def test_labels_of_close_points_do_not_overlap():
+    points = [("SVG tiny", 1.0, 0.5), ("FitVid small", 1.01, 0.5), ("MCVD", 1.02, 0.51),
+              ("RLF", 3.0, 0.1)]
+    labels = _labels(scatter_plot(points, x_label="FVD"))
+    assert [t for *_, t in labels] == [p[0] for p in points]
+    boxes = []
+    for x, y, anchor, text in labels:
+        w = _CHAR_WIDTH * len(text)
+        x0, x1 = (x - w, x) if anchor == "end" else (x, x + w)
+        boxes.append((x0, x1, y - 11, y + 2))
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1:]:
+            assert a[1] <= b[0] or a[0] >= b[1] or a[3] <= b[2] or a[2] >= b[3], (a, b)
