@@ -93,6 +93,19 @@ def test_existing_run_needs_resume_and_the_same_protocol(reference, tmp_path):
     assert again.num_run == 0 and again.num_skipped == 6 and len(again.records) == 6
 
 
+def test_a_run_that_stopped_before_any_trial_does_not_block_its_directory(tmp_path):
+    from vp2.benchmark.run_dir import prepare_run_dir
+
+    cfg = _config(tmp_path, "stopped")
+    run_dir = prepare_run_dir(cfg)  # what a run writes before its first trial
+    assert (run_dir / "config.yaml").exists() and not (run_dir / "trials.jsonl").exists()
+    prepare_run_dir(replace(cfg, num_samples=16))  # no --resume needed, settings may change
+    assert read_config(run_dir).num_samples == 16
+    (run_dir / "trials.jsonl").write_text(json.dumps({"task": "t", "seed": 0}) + "\n")
+    with pytest.raises(FileExistsError, match="1 recorded trial\\(s\\): add --resume"):
+        prepare_run_dir(cfg)
+
+
 def test_resume_after_sigkill_runs_every_trial_exactly_once(reference, tmp_path):
     cfg = _config(tmp_path, "killed", seeds=(0, 1, 2), save_predictions=True)
     trials = Path(cfg.out) / "trials.jsonl"

@@ -113,3 +113,17 @@ def test_clear_errors(dataset, tmp_path, monkeypatch):
         )
     with pytest.raises(SystemExit):  # argparse: not a registered model
         _parse("--model", "no_such_model", "--env", "robodesk")
+
+
+def test_help_names_only_registered_presets():
+    """The sizes under `vp2 train --help` name real presets (a renamed preset fails here)."""
+    import re
+
+    from vp2.cli.train import SIZES_EPILOG
+    from vp2.models.registry import MODELS
+
+    named = re.findall(r"\b(struct_vrnn|maskvit_tokenizer|maskvit|fitvid|mcvd|svg_prime) (\S+)",
+                       SIZES_EPILOG)
+    assert {m for m, _ in named} == set(MODELS)
+    for model, preset in named:
+        assert preset in MODELS[model].presets, (model, preset)

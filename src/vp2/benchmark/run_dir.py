@@ -66,10 +66,16 @@ def prepare_run_dir(config: RunConfig) -> Path:
     run_dir = Path(config.out)
     existing = (run_dir / CONFIG_FILE).exists() or (run_dir / TRIALS_FILE).exists()
     if existing and not config.resume:
-        raise FileExistsError(
-            f"{run_dir} already holds a run; pass resume=True (--resume) to continue it, or "
-            "choose another output directory"
-        )
+        done = len(read_trials(run_dir)) if (run_dir / TRIALS_FILE).exists() else 0
+        if done:
+            raise FileExistsError(
+                f"{run_dir} already holds a run with {done} recorded trial(s): add --resume to "
+                "continue it, or choose another --out directory"
+            )
+        # A run that stopped before its first trial (a bad model, a typo) left only its config:
+        # there is nothing to lose, so the directory is reused instead of blocking the retry.
+        log.info("%s holds no recorded trial; starting the run there afresh", run_dir)
+        existing = False
     if existing and (run_dir / CONFIG_FILE).exists():
         old = read_config(run_dir)
         changed = [

@@ -57,8 +57,22 @@ def _add_int(
     group.add_argument(flag, type=int, default=default, metavar=metavar, help=help)
 
 
+#: Shown under ``vp2 train --help``: the smallest presets and how to train on a CPU (the
+#: figures are measured in docs/models.md).
+SIZES_EPILOG = """\
+smallest presets (parameters; docs/models.md has every preset and its timing):
+  struct_vrnn tiny 0.10 M   maskvit tiny 0.30 M (+ maskvit_tokenizer tiny 0.18 M)
+  fitvid mini 1.52 M        mcvd tiny 1.60 M (10 sampling steps)
+  svg_prime m0.25k0.25 5.79 M; with --model-arg m=0.125 k=0.125: 1.65 M (the shipped model)
+on a CPU: fitvid mini predicts a 200-sample planning batch in 18 s, svg_prime m0.25k0.25 in
+41 s (2-core reference machine). On a CPU shared with other work run with OMP_NUM_THREADS=1:
+under contention one thread trained 5x faster than two (docs/models.md)."""
+
+
 def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Adds the ``vp2 train`` flags to ``p`` (a sub-parser) and returns it."""
+    p.epilog = SIZES_EPILOG
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     envs = sorted(default_trajectories())
     what = p.add_argument_group("what to train")
     what.add_argument("--model", required=True, choices=model_names(), help="model to train")

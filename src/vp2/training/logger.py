@@ -63,7 +63,10 @@ class MetricsLogger:
             try:
                 from torch.utils.tensorboard import SummaryWriter
             except ImportError:
-                log.info("tensorboard not installed; logging to %s only", self.path)
+                log.info(
+                    "tensorboard not installed; logging to %s only (pip install 'vp2[tensorboard]')",
+                    self.path,
+                )
             else:
                 self._tb = SummaryWriter(str(Path(out_dir) / "tb"), purge_step=resume_step)
 
