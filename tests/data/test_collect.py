@@ -10,7 +10,14 @@ import pytest
 
 from tests.data.conftest import TINY
 from vp2.data import storage
-from vp2.data.collect import CollectionConfig, chunk_plan, collect, rollout, trajectory_seed
+from vp2.data.collect import (
+    ChunkProgress,
+    CollectionConfig,
+    chunk_plan,
+    collect,
+    rollout,
+    trajectory_seed,
+)
 from vp2.data.policies import data_noise_sigma, make_data_env
 
 
@@ -153,3 +160,58 @@ def test_a_dataset_from_before_the_render_setting_still_resumes(tiny_dataset, tm
     assert collect(TINY, old, workers=1, progress=False) == old
     with pytest.raises(FileExistsError, match="render: existing True vs requested False"):
         collect(CollectionConfig(**{**TINY.__dict__, "render": False}), old, workers=1, progress=False)
+
+
+class _Bar:
+    """Records the bar's position after every update."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.positions: list[int] = []
+
+    def update(self, k: int) -> None:
+        self.n += k
+        self.positions.append(self.n)
+
+
+def test_progress_counts_trajectories_and_each_chunk_once():
+    bar = _Bar()
+    counter = ChunkProgress(bar, {0: 2, 1: 2, 2: 1})
+    counter.trajectory(0)
+    counter.trajectory(1)
+    counter.trajectory(0)
+    counter.trajectory(0)  # a re-run chunk reports again: capped at its size
+    counter.chunk(0)  # already counted in full: no jump
+    counter.chunk(2)  # a chunk whose reports never arrived counts its size when written
+    counter.chunk(1)
+    counter.trajectory(1)  # a straggler after the chunk was written: ignored
+    assert bar.positions == [1, 2, 3, 3, 4, 5] and bar.n == 5
+
+
+def test_local_collection_reports_every_trajectory(tmp_path, monkeypatch):
+    """A pooled collection moves its bar once per trajectory and writes the same data."""
+    import vp2.data.collect as collect_module
+
+    bars = []
+
+    class RecordingProgress(ChunkProgress):
+        def __init__(self, bar, sizes):
+            super().__init__(bar, sizes)
+            bars.append(self)
+            self.calls: list[str] = []
+
+        def trajectory(self, chunk):
+            self.calls.append("t")
+            super().trajectory(chunk)
+
+        def chunk(self, chunk):
+            self.calls.append("c")
+            super().chunk(chunk)
+
+    monkeypatch.setattr(collect_module, "ChunkProgress", RecordingProgress)
+    config = CollectionConfig(**{**TINY.__dict__, "trajectories_per_stream": 2})
+    root = collect(config, tmp_path / "pooled", workers=2, progress=True)
+    (counter,) = bars
+    assert counter.calls.count("t") == 4 and counter.calls.count("c") == 2
+    assert counter.bar.n == 4
+    assert len(list((root / storage.SHARD_DIR).glob("*.hdf5"))) == 2

@@ -14,11 +14,14 @@ the shards that exist and are valid, so a killed collection resumes where it sto
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
+import multiprocessing as mp
+import threading
 import time
 import zlib
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -168,8 +171,8 @@ def rollout(
 _WORKER_ENVS: dict[tuple[str, int], Env] = {}
 
 
-def _collect_chunk(job: tuple[dict[str, Any], dict[str, Any]]) -> list[storage.Trajectory]:
-    config_json, chunk = job
+def _collect_chunk(job: tuple[dict[str, Any], dict[str, Any], Any]) -> list[storage.Trajectory]:
+    config_json, chunk, progress_queue = job
     config = CollectionConfig(**{**config_json, "streams": tuple(config_json["streams"])})
     streams = config.resolved_streams()
     trajectories = []
@@ -192,7 +195,62 @@ def _collect_chunk(job: tuple[dict[str, Any], dict[str, Any]]) -> list[storage.T
                 render=config.render,
             )
         )
+        if progress_queue is not None:
+            progress_queue.put(chunk["chunk"])
     return trajectories
+
+
+class ChunkProgress:
+    """A progress bar that moves per trajectory although work comes back per chunk.
+
+    Workers put their chunk's number on a queue after every trajectory; a thread here drains it.
+    A chunk counts at most its size (a chunk re-run after a lost worker reports again), and a
+    finished chunk counts exactly its size, whatever arrived.
+    """
+
+    def __init__(self, bar: Any, sizes: dict[int, int]) -> None:
+        self.bar = bar
+        self._sizes = sizes
+        self._seen: dict[int, int] = {}
+        self._done: set[int] = set()
+        self._lock = threading.Lock()
+
+    def trajectory(self, chunk: int) -> None:
+        """One trajectory of ``chunk`` finished (a worker said so)."""
+        with self._lock:
+            if chunk in self._done or self._seen.get(chunk, 0) >= self._sizes[chunk]:
+                return
+            self._seen[chunk] = self._seen.get(chunk, 0) + 1
+            self.bar.update(1)
+
+    def chunk(self, chunk: int) -> None:
+        """``chunk`` is written: it counts its full size from now on."""
+        with self._lock:
+            if chunk not in self._done:
+                self._done.add(chunk)
+                self.bar.update(self._sizes[chunk] - self._seen.get(chunk, 0))
+
+    @contextlib.contextmanager
+    def listening(self, enabled: bool) -> Iterator[Any]:
+        """Yields a queue for the workers (``None`` when ``enabled`` is false: Ray workers on
+        other machines cannot reach it) and drains it until the block ends."""
+        if not enabled:
+            yield None
+            return
+        with mp.get_context("spawn").Manager() as manager:
+            queue = manager.Queue()
+
+            def drain() -> None:
+                while (item := queue.get()) is not None:
+                    self.trajectory(item)
+
+            thread = threading.Thread(target=drain, daemon=True)
+            thread.start()
+            try:
+                yield queue
+            finally:
+                queue.put(None)
+                thread.join()
 
 
 def _check_existing(root: Path, config: CollectionConfig) -> dict[str, Any] | None:
@@ -274,12 +332,16 @@ def collect(
         disable=not progress, smoothing=0.1,
     ) as bar:
         env_meta = {"env": config.env, "collection": config_json}
-        jobs = [(config_json, chunk) for chunk in todo]
-        for (_, chunk), trajectories in executor.imap_unordered(_collect_chunk, jobs):
-            storage.write_shard(
-                storage.shard_path(root, chunk["chunk"]), trajectories, env_meta, config.valid_every
-            )
-            bar.update(len(trajectories))
+        counter = ChunkProgress(bar, {c["chunk"]: c["count"] for c in todo})
+        # Per-trajectory updates where the workers can reach this process (local pools).
+        with counter.listening(progress and isinstance(executor, LocalExecutor)) as queue:
+            jobs = [(config_json, chunk, queue) for chunk in todo]
+            for (_, chunk, _), trajectories in executor.imap_unordered(_collect_chunk, jobs):
+                storage.write_shard(
+                    storage.shard_path(root, chunk["chunk"]), trajectories, env_meta,
+                    config.valid_every,
+                )
+                counter.chunk(chunk["chunk"])
     manifest["complete"] = True
     manifest["collected_seconds"] = round(time.perf_counter() - start, 3)
     write_json_atomic(root / storage.MANIFEST, manifest)
