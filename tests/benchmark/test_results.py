@@ -58,7 +58,7 @@ def test_overall_score_env_means_and_seed_spread():
         + _records(RED, {0: [T, F], 1: [F, F]}, cost="pixel_only")  # 0.5, 0.0 -> 0.25
     )
     s = summarize(records)
-    assert [t.task for t in s.tasks] == [PUSH, CUBE, RED]
+    assert [t.task for t in s.tasks] == [RED, CUBE, PUSH]  # the suite order
     assert s.mean == pytest.approx(0.5)
     assert s.env_means == {"tabletop": pytest.approx(0.625), "robodesk": pytest.approx(0.25)}
     # Per seed, the mean over tasks: seed 0 (1 + 0 + .5) / 3, seed 1 (.5 + 1 + 0) / 3.
@@ -71,7 +71,7 @@ def test_normalisation_by_the_oracle_is_a_ratio_of_means():
     model = _records(PUSH, {0: [T, F], 1: [F, F]}) + _records(CUBE, {0: [T, T], 1: [T, F]})
     oracle = _records(PUSH, {0: [T, T], 1: [T, F]}) + _records(CUBE, {0: [T, T], 1: [T, T]})
     s = summarize(model, oracle)
-    push, cube = s.tasks
+    cube, push = s.tasks  # the suite order: large cube before sphere
     assert push.oracle_mean == pytest.approx(0.75) and push.normalised == pytest.approx(0.25 / 0.75)
     assert cube.oracle_mean == 1.0 and cube.normalised == pytest.approx(0.75)
     oracle_mean = (0.75 + 1.0) / 2
@@ -87,7 +87,7 @@ def test_normalisation_skips_tasks_the_oracle_lacks_and_zero_oracle_rates():
     model = _records(PUSH, {0: [T, F]}) + _records(CUBE, {0: [T, F]})
     oracle = _records(PUSH, {0: [F, F]})
     s = summarize(model, oracle)
-    push, cube = s.tasks
+    cube, push = s.tasks  # the suite order: large cube before sphere
     assert push.oracle_mean == 0.0 and push.normalised is None
     assert cube.oracle_mean is None
     assert s.normalised is None  # the oracle's mean over the shared tasks is 0
@@ -131,3 +131,17 @@ def test_summary_of_nothing_is_nan_not_an_error():
     assert s.tasks == [] and math.isnan(s.mean)
     assert "all tasks" in format_summary(s)
     json.dumps(s.to_dict())
+
+
+def test_tasks_come_in_suite_order_not_finish_order():
+    from vp2.benchmark.results import task_success
+
+    def rec(task, seed=0):
+        return {"task": task, "instance": 0, "seed": seed, "success": True, "error": None}
+
+    finished = [rec("tabletop/push_sphere"), rec("robodesk/open_slide"), rec("robodesk/push_red"),
+                rec("custom/task"), rec("robodesk/push_blue")]
+    assert list(task_success(finished)) == [
+        "robodesk/push_red", "robodesk/push_blue", "robodesk/open_slide", "tabletop/push_sphere",
+        "custom/task",
+    ]

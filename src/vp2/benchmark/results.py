@@ -25,6 +25,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
+from vp2.envs.tasks import TASK_NAMES
+
 TRIALS_FILE = "trials.jsonl"
 
 TrialKey = tuple[str, int, int]
@@ -223,6 +225,10 @@ def task_success(records: Iterable[dict[str, Any]]) -> dict[str, TaskSummary]:
         ok[task][int(r["seed"])].append(bool(r["success"]))
         instances[task].add(int(r["instance"]))
         kinds[task].add(str(r.get("cost", "unknown")))
+    # The suite's order (RoboDesk, then the tabletop, as in TASK_NAMES), not the order in which
+    # parallel trials happened to finish; unknown names keep their order after those.
+    canonical = {name: i for i, name in enumerate(TASK_NAMES)}
+    order.sort(key=lambda t: canonical.get(t, len(canonical)))
     out = {}
     for task in order:
         per_seed = {s: _mean(v) for s, v in sorted(ok[task].items())}
