@@ -7,8 +7,8 @@ import argparse
 from vp2.cli._common import add_executor_flags, make_executor_from_args
 from vp2.data.collect import DEFAULT_TRAJECTORIES
 
-NAME = 'collect'
-HELP = 'collect scripted trajectories into a dataset'
+NAME = "collect"
+HELP = "collect scripted trajectories into a dataset"
 DESCRIPTION = None
 
 

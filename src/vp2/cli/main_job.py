@@ -7,9 +7,12 @@ from pathlib import Path
 
 from vp2.spec import MAIN_JOB_NUM_SAMPLES
 
-NAME = 'main'
+NAME = "main"
 HELP = "the README's main job: a small evaluation on the defaults"
-DESCRIPTION = 'Evaluates the shipped small model and the trivial baselines on the first instance of every task category (vp2.benchmark.main_job). Re-running resumes.'
+DESCRIPTION = (
+    "Evaluates the shipped small model and the trivial baselines on the first instance of "
+    "every task category (vp2.benchmark.main_job). Re-running resumes."
+)
 
 
 def run_from_args(args: argparse.Namespace) -> int:

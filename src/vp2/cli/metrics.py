@@ -15,9 +15,12 @@ from vp2.metrics.evaluate import DEFAULT_NUM_CLIPS, METRICS_FILE, evaluate_model
 from vp2.training.perceptual import BACKBONES
 from vp2.utils.kv import parse_key_values, yaml_value
 
-NAME = 'metrics'
-HELP = 'perceptual metrics of a model on held-out clips'
-DESCRIPTION = "MSE, PSNR, SSIM, LPIPS and FVD of a model's predictions on a fixed, seeded set of held-out clips (docs/metrics.md)."
+NAME = "metrics"
+HELP = "perceptual metrics of a model on held-out clips"
+DESCRIPTION = (
+    "MSE, PSNR, SSIM, LPIPS and FVD of a model's predictions on a fixed, seeded set of held-"
+    "out clips (docs/metrics.md)."
+)
 
 
 def model_slug(spec: str) -> str:

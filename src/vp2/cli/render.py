@@ -7,8 +7,8 @@ from pathlib import Path
 
 from vp2.cli._common import add_executor_flags, make_executor_from_args
 
-NAME = 'render'
-HELP = 're-render a dataset at another resolution'
+NAME = "render"
+HELP = "re-render a dataset at another resolution"
 DESCRIPTION = None
 
 

@@ -7,9 +7,12 @@ from pathlib import Path
 
 from vp2.report.page import DEFAULT_TRIALS_PER_TASK, write_report
 
-NAME = 'report'
-HELP = 'self-contained HTML report of one or more runs'
-DESCRIPTION = 'Writes one self-contained HTML page: success per task and model, normalised scores, the study when metrics exist, trial videos (docs/report.md).'
+NAME = "report"
+HELP = "self-contained HTML report of one or more runs"
+DESCRIPTION = (
+    "Writes one self-contained HTML page: success per task and model, normalised scores, the "
+    "study when metrics exist, trial videos (docs/report.md)."
+)
 
 
 def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:

@@ -7,9 +7,12 @@ import argparse
 from vp2.cli._common import add_executor_flags
 from vp2.spec import GAMMA, MIN_SEEDS, NUM_CONTROL_STEPS
 
-NAME = 'run'
-HELP = 'evaluate a model by planning with it on the task suite (docs/benchmark.md)'
-DESCRIPTION = 'Evaluate a video prediction model by planning with it on the task suite. One flag per vp2.benchmark.RunConfig field (docs/benchmark.md).'
+NAME = "run"
+HELP = "evaluate a model by planning with it on the task suite (docs/benchmark.md)"
+DESCRIPTION = (
+    "Evaluate a video prediction model by planning with it on the task suite. One flag per "
+    "vp2.benchmark.RunConfig field (docs/benchmark.md)."
+)
 
 
 RUN_OPTIMIZERS = ["mppi", "cem", "cem_gd", "lbfgs"]

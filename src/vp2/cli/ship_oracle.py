@@ -8,9 +8,13 @@ from pathlib import Path
 from vp2.benchmark.ship_oracle import build_oracle_asset, write_oracle_asset
 from vp2.benchmark.shipped_oracle import ASSET_FILE, load_shipped_oracle
 
-NAME = 'ship-oracle'
-HELP = 'build the shipped oracle (the default normaliser) from simulator-oracle runs'
-DESCRIPTION = "Reads finished simulator-oracle run directories and writes the per-task success rates that vp2 run, main and report normalise scores by when no --oracle is given (docs/benchmark.md, 'The shipped oracle')."
+NAME = "ship-oracle"
+HELP = "build the shipped oracle (the default normaliser) from simulator-oracle runs"
+DESCRIPTION = (
+    "Reads finished simulator-oracle run directories and writes the per-task success rates "
+    "that vp2 run, main and report normalise scores by when no --oracle is given "
+    "(docs/benchmark.md, 'The shipped oracle')."
+)
 
 
 def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:

@@ -8,9 +8,12 @@ from pathlib import Path
 from vp2.report.study import study
 from vp2.report.study_output import write_study
 
-NAME = 'study'
-HELP = 'perceptual metrics versus control success'
-DESCRIPTION = 'Table 1 of the paper and rank correlations between each metric and success over several models (docs/report.md).'
+NAME = "study"
+HELP = "perceptual metrics versus control success"
+DESCRIPTION = (
+    "Table 1 of the paper and rank correlations between each metric and success over several "
+    "models (docs/report.md)."
+)
 
 
 def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:

@@ -7,8 +7,8 @@ from pathlib import Path
 
 from vp2.cli._common import add_executor_flags, make_executor_from_args
 
-NAME = 'tasks'
-HELP = 'the task suite: generate, list, show'
+NAME = "tasks"
+HELP = "the task suite: generate, list, show"
 DESCRIPTION = None
 
 

@@ -27,9 +27,12 @@ from vp2.training.config import TrainConfig
 from vp2.training.perceptual import PERCEPTUAL_LOSSES
 from vp2.training.trainer import train
 
-NAME = 'train'
-HELP = 'train a video prediction model on a collected dataset'
-DESCRIPTION = 'Train a video prediction model on a collected dataset (docs/models.md). Continue a run with the same command and --resume.'
+NAME = "train"
+HELP = "train a video prediction model on a collected dataset"
+DESCRIPTION = (
+    "Train a video prediction model on a collected dataset (docs/models.md). Continue a run "
+    "with the same command and --resume."
+)
 
 
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(TrainConfig)}

@@ -29,9 +29,12 @@ from vp2.classifiers.train import ClassifierTrainConfig, train_task
 from vp2.data.storage import DatasetError
 from vp2.envs import ROBODESK_TASKS
 
-NAME = 'train-classifier'
-HELP = 'train RoboDesk success classifiers'
-DESCRIPTION = 'Train the per-task RoboDesk success classifiers of the planning cost on a collected dataset (docs/benchmark.md).'
+NAME = "train-classifier"
+HELP = "train RoboDesk success classifiers"
+DESCRIPTION = (
+    "Train the per-task RoboDesk success classifiers of the planning cost on a collected "
+    "dataset (docs/benchmark.md)."
+)
 
 
 def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
