@@ -65,12 +65,14 @@ def test_flags_map_onto_the_config(dataset, tmp_path):
             "--weight-decay", "0.01", "--grad-clip", "5", "--seed", "3", "--device", "cpu",
             "--no-amp", "--perceptual", "lpips", "--eval-interval", "7",
             "--ckpt-interval", "9", "--keep-checkpoints", "3", "--steps", "11",
+            "--max-minutes", "2.5",
         )
     )  # fmt: skip
     assert config.model_overrides == {"beta": "1e-3", "rnn_size": "32", "g_dim": "16"}
     assert (config.max_trajectories, config.tasks) == (5, ["synthetic/moving_square"])
     assert (config.optimizer, config.weight_decay, config.grad_clip) == ("adamw", 0.01, 5.0)
     assert (config.seed, config.device, config.amp, config.steps) == (3, "cpu", False, 11)
+    assert config.max_minutes == 2.5
     assert (config.perceptual, config.perceptual_weight) == ("lpips", 1.0)  # weight defaults to 1
     assert (config.eval_interval, config.ckpt_interval, config.keep_checkpoints) == (7, 9, 3)
     assert (config.tensorboard, config.progress, config.resume) == (False, False, False)
@@ -78,6 +80,7 @@ def test_flags_map_onto_the_config(dataset, tmp_path):
     # Defaults: TrainConfig's, the dataset `vp2 collect` writes, a run name from the config.
     config = config_from_args(_parse("--model", "svg_prime", "--data", str(dataset)))
     assert (config.steps, config.batch_size, config.workers, config.amp) == (100_000, 32, 2, None)
+    assert config.max_minutes is None
     assert (config.lr, config.optimizer, config.perceptual_weight) == (None, None, 0.0)
     assert config.out_dir == str(Path("runs") / "svg_prime-m1k1-squares-seed0")
     config = config_from_args(

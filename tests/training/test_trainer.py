@@ -10,7 +10,7 @@ from PIL import Image
 
 from tests.models.synthetic import write_moving_square_dataset
 from vp2.models import FitVid, load_model, load_model_spec
-from vp2.training import StepBatchSampler, TrainConfig, train
+from vp2.training import StepBatchSampler, TrainConfig, train, trainer
 
 # Tiny models so that a training step takes milliseconds on a CPU.
 TINY = {
@@ -201,3 +201,68 @@ def test_exported_checkpoint_predicts_like_the_training_one(dataset, tmp_path, h
     a = full.predict(context, actions, generator=torch.Generator().manual_seed(1))
     b = small.predict(context, actions, generator=torch.Generator().manual_seed(1))
     torch.testing.assert_close(a, b, atol=2e-2 if half else 0, rtol=0)
+
+
+@pytest.fixture
+def step_clock(monkeypatch):
+    """The trainer's clock, made deterministic: every optimisation step takes 30 s, every
+    validation 10 min, nothing else any time. Returns the clock's reading (a one-element list)."""
+    now = [1000.0]
+    real_step, real_validation = trainer.optimisation_step, trainer.run_validation
+
+    def timed_step(run, batch):
+        now[0] += 30.0
+        return real_step(run, batch)
+
+    def timed_validation(run, step):
+        now[0] += 600.0  # left out of the budget: it would spend it at once
+        return real_validation(run, step)
+
+    monkeypatch.setattr(trainer, "clock", lambda: now[0])
+    monkeypatch.setattr(trainer, "optimisation_step", timed_step)
+    monkeypatch.setattr(trainer, "run_validation", timed_validation)
+    return now
+
+
+def test_time_budget_stops_early_and_resumes_within_it(dataset, tmp_path, step_clock):
+    out = tmp_path / "budget"
+    # 30 s a step: a budget of 1.5 min is spent at step 3, long before steps=20.
+    first = train(_config(dataset, out, steps=20, max_minutes=1.5))
+    assert (first.step, first.train_minutes, first.budget_reached) == (3, 1.5, True)
+    # It ends as at `steps`: a final checkpoint, validation and log row at the step it stopped.
+    assert first.checkpoint == out / "checkpoints" / "step_00000003.pt"
+    assert torch.load(first.checkpoint, weights_only=True)["train_seconds"] == 90.0
+    assert [int(r["step"]) for r in _rows(out) if r["tag"] == "valid/pred_mse"] == [2, 3]
+    minutes = {int(r["step"]): float(r["value"]) for r in _rows(out) if r["tag"] == "train/minutes"}
+    assert minutes == {1: 0.5, 2: 1.0, 3: 1.5}
+    finished = json.loads((out / "config.json").read_text())["finished"]
+    assert finished == {"step": 3, "train_minutes": 1.5, "stopped_by": "max_minutes"}
+
+    # Resuming with the same budget trains nothing: the time is spent.
+    clock_before = step_clock[0]
+    again = train(_config(dataset, out, steps=20, max_minutes=1.5, resume=True))
+    assert (again.step, again.checkpoint, again.budget_reached) == (3, first.checkpoint, True)
+    assert step_clock[0] == clock_before and again.train_minutes == 1.5
+
+    # A larger budget continues the run, counting the 1.5 min already spent: 2 more steps.
+    more = train(_config(dataset, out, steps=20, max_minutes=2.5, resume=True))
+    assert (more.step, more.train_minutes, more.budget_reached) == (5, 2.5, True)
+    assert [int(r["step"]) for r in _rows(out) if r["tag"] == "train/loss"] == [1, 2, 3, 4, 5]
+
+    # Stopping by the budget and resuming changes nothing in what is computed: the weights
+    # are those of 5 uninterrupted steps without a budget.
+    straight = train(_config(dataset, tmp_path / "straight", steps=5))
+    assert (straight.budget_reached, straight.train_minutes) == (False, 2.5)
+    a = torch.load(straight.checkpoint, weights_only=True)["model"]["state_dict"]
+    b = torch.load(more.checkpoint, weights_only=True)["model"]["state_dict"]
+    for key, value in a.items():
+        torch.testing.assert_close(b[key], value, rtol=0, atol=0, msg=key)
+
+
+def test_time_budget_larger_than_the_steps_need(dataset, tmp_path, step_clock):
+    result = train(_config(dataset, tmp_path / "run", steps=4, max_minutes=60))
+    assert (result.step, result.train_minutes, result.budget_reached) == (4, 2.0, False)
+    finished = json.loads((tmp_path / "run" / "config.json").read_text())["finished"]
+    assert finished["stopped_by"] == "steps"
+    with pytest.raises(ValueError, match="max_minutes must be > 0"):
+        _config(dataset, tmp_path / "x", max_minutes=0)

@@ -6,6 +6,7 @@
     vp2 train --model fitvid --preset mini --env tabletop --steps 20000 --perceptual lpips_vgg \\
         --perceptual-weight 10
     vp2 train --model fitvid --preset mini --env tabletop --steps 40000 --resume   # continue
+    vp2 train --model mcvd --preset tiny --env robodesk --max-minutes 60   # a time budget
 
 One flag per :class:`TrainConfig` field; the Python API is the same dataclass and
 :func:`train`. ``--data`` defaults to the directory ``vp2 collect <env>`` writes. A run
@@ -118,6 +119,14 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
     opt = p.add_argument_group("optimisation")
     _add_int(opt, "--steps", "total steps (default: %(default)s; paper: 153K)")
+    opt.add_argument(
+        "--max-minutes",
+        type=float,
+        metavar="MIN",
+        help="training time budget: stop (validate, write the final checkpoint) after the first "
+        "step at which the run's training wall time, earlier --resume sessions included, "
+        "reaches MIN minutes, or at --steps if that comes first (default: no budget)",
+    )
     _add_int(opt, "--batch-size", "default: %(default)s")
     opt.add_argument("--lr", type=float, help="learning rate (default: the model's, 3e-4)")
     opt.add_argument("--optimizer", choices=["adam", "adamw"], help="default: the model's (Adam)")
@@ -251,6 +260,10 @@ def run_from_args(args: argparse.Namespace) -> int:
         )
         return 130
     print(f"checkpoint: {result.checkpoint} (step {result.step})")
+    stopped = (
+        f" (the {config.max_minutes:g}-minute budget ended it)" if result.budget_reached else ""
+    )
+    print(f"training time: {result.train_minutes:.2f} min{stopped}")
     for key, value in sorted(result.valid_metrics.items()):
         print(f"{key}: {value:.6g}")
     return 0

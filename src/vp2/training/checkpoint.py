@@ -13,6 +13,7 @@ needs on top::
     train_config   the TrainConfig as a dict
     dataset        {"path", "config" (the dataset manifest's, with env metadata), ...}
     metrics        the latest validation metrics
+    train_seconds  training wall time of all sessions up to this checkpoint (the time budget)
 
 :meth:`vp2.training.setup.TrainingRun.save_checkpoint` writes one; :mod:`vp2.training.export`
 strips the resume state for shipping.

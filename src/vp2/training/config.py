@@ -14,6 +14,7 @@ from typing import Any
 RESUMABLE_CHANGES = frozenset(
     {
         "steps",
+        "max_minutes",
         "resume",
         "workers",
         "progress",
@@ -45,6 +46,12 @@ class TrainConfig:
         tasks: Train on these data streams only (``None``: all).
         max_trajectories: Use only the dataset's first N trajectories (data-quantity studies).
         steps: Total optimisation steps (the paper: 153 K).
+        max_minutes: A training time budget: the run stops after the first optimisation step at
+            which its accumulated training wall time reaches it (or at ``steps``, whichever
+            comes first), and ends as at ``steps`` (validation, final checkpoint). Time counts
+            from the start of each session's training loop; set-up, validation and checkpoint
+            writing are left out. It is stored in every checkpoint, so a resumed run counts
+            what its earlier sessions spent up to their last checkpoint. ``None``: no budget.
         batch_size: Clips per step (the paper: 32).
         lr: Learning rate (``None``: the model's default, 3e-4 for both).
         optimizer: ``"adam"`` or ``"adamw"`` (``None``: the model's default, Adam).
@@ -79,6 +86,7 @@ class TrainConfig:
     tasks: list[str] | None = None
     max_trajectories: int | None = None
     steps: int = 100_000
+    max_minutes: float | None = None
     batch_size: int = 32
     lr: float | None = None
     optimizer: str | None = None
@@ -108,6 +116,8 @@ class TrainConfig:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.eval_interval < 0 or self.ckpt_interval < 0 or self.workers < 0:
             raise ValueError("eval_interval, ckpt_interval and workers must be >= 0")
+        if self.max_minutes is not None and not self.max_minutes > 0:
+            raise ValueError(f"max_minutes must be > 0 (or None), got {self.max_minutes}")
         if self.perceptual_weight < 0:
             raise ValueError(f"perceptual_weight must be >= 0, got {self.perceptual_weight}")
 
@@ -129,6 +139,8 @@ class TrainResult:
     step: int
     train_metrics: dict[str, float]  # of the last step
     valid_metrics: dict[str, float]  # of the last validation (empty without a valid split)
+    train_minutes: float = 0.0  # training wall time of all sessions, up to the final checkpoint
+    budget_reached: bool = False  # stopped by ``max_minutes`` (before or at ``steps``)
 
 
 def check_resumable(config: TrainConfig, saved: dict[str, Any], where: Path) -> None:

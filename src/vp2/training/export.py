@@ -13,7 +13,7 @@ from pathlib import Path
 from vp2.models.checkpoint import read_model_checkpoint, write_model_checkpoint
 
 #: Entries an inference-only checkpoint keeps (no optimizer, scaler or RNG states).
-EXPORT_KEYS = ("model", "step", "train_config", "dataset", "metrics")
+EXPORT_KEYS = ("model", "step", "train_config", "dataset", "metrics", "train_seconds")
 
 
 def export_checkpoint(

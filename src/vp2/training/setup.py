@@ -62,6 +62,9 @@ class TrainingRun:
         last_checkpoint: The newest checkpoint written (or resumed from).
         start: Steps already done (non-zero when resuming).
         valid_metrics: The latest validation metrics.
+        train_seconds: Training wall time so far, earlier sessions included (restored from
+            the checkpoint; the trainer advances it, ``config.max_minutes`` bounds it).
+        run_record: What ``config.json`` holds (:meth:`record_finish` adds the outcome).
     """
 
     config: TrainConfig
@@ -81,6 +84,8 @@ class TrainingRun:
     last_checkpoint: Path | None = None
     start: int = 0
     valid_metrics: dict[str, float] = dataclasses.field(default_factory=dict)
+    train_seconds: float = 0.0
+    run_record: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def autocast(self) -> contextlib.AbstractContextManager:
         """Mixed precision on CUDA only; fp16 needs the GradScaler, bf16 does not."""
@@ -106,10 +111,21 @@ class TrainingRun:
                 "train_config": self.config.to_dict(),
                 "dataset": self.dataset_info,
                 "metrics": self.valid_metrics,
+                "train_seconds": self.train_seconds,
             },
         )
         prune_checkpoints(self.out_dir, self.config.keep_checkpoints)
         return path
+
+    def record_finish(self, step: int, budget_reached: bool) -> None:
+        """Adds how the run ended to ``config.json`` (called by the trainer at its end): the
+        steps done, the training minutes of all sessions and what stopped it."""
+        self.run_record["finished"] = {
+            "step": step,
+            "train_minutes": self.train_seconds / 60,
+            "stopped_by": "max_minutes" if budget_reached else "steps",
+        }
+        write_json_atomic(self.out_dir / "config.json", self.run_record)
 
 
 def start_run(config: TrainConfig, perceptual_fn: PerceptualLoss | None = None) -> TrainingRun:
@@ -135,9 +151,11 @@ def start_run(config: TrainConfig, perceptual_fn: PerceptualLoss | None = None) 
     perceptual = resolve_perceptual(
         config.perceptual, config.perceptual_weight, perceptual_fn, device
     )
-    start, valid_metrics = 0, {}
+    start, valid_metrics, train_seconds = 0, {}, 0.0
     if resume_payload is not None:
-        start, valid_metrics = _restore(resume_payload, model, optimizer, scaler, noise)
+        start, valid_metrics, train_seconds = _restore(
+            resume_payload, model, optimizer, scaler, noise
+        )
         if start > config.steps:
             raise ValueError(
                 f"cannot resume {out_dir} at step {start} with steps={config.steps}: the run is "
@@ -146,17 +164,15 @@ def start_run(config: TrainConfig, perceptual_fn: PerceptualLoss | None = None) 
         log.info("resuming %s from step %d", out_dir, start)
 
     dataset_info = _dataset_info(config, train_set)
-    write_json_atomic(
-        out_dir / "config.json",
-        {
-            "train": config.to_dict(),
-            "model": {"name": model.name, "config": model.config_dict()},
-            "parameters": model.num_parameters(),
-            "dataset": dataset_info,
-            "device": str(device),
-            "amp": str(amp_dtype) if use_amp else None,
-        },
-    )
+    run_record = {
+        "train": config.to_dict(),
+        "model": {"name": model.name, "config": model.config_dict()},
+        "parameters": model.num_parameters(),
+        "dataset": dataset_info,
+        "device": str(device),
+        "amp": str(amp_dtype) if use_amp else None,
+    }
+    write_json_atomic(out_dir / "config.json", run_record)
     logger = MetricsLogger(
         out_dir, resume_step=start if resume_payload else None, tensorboard=config.tensorboard
     )
@@ -183,6 +199,8 @@ def start_run(config: TrainConfig, perceptual_fn: PerceptualLoss | None = None) 
         last_checkpoint=resumed_from,
         start=start,
         valid_metrics=valid_metrics,
+        train_seconds=train_seconds,
+        run_record=run_record,
     )
 
 
@@ -207,15 +225,19 @@ def _restore(
     optimizer: torch.optim.Optimizer,
     scaler: torch.amp.GradScaler,
     noise: torch.Generator,
-) -> tuple[int, dict[str, float]]:
-    """Loads a checkpoint's states into a freshly built run; returns its step and its latest
-    validation metrics."""
+) -> tuple[int, dict[str, float], float]:
+    """Loads a checkpoint's states into a freshly built run; returns its step, its latest
+    validation metrics and its training seconds (0 for checkpoints older than the budget)."""
     model.load_state_dict(payload["model"]["state_dict"])
     optimizer.load_state_dict(payload["optimizer"])
     if payload.get("scaler"):
         scaler.load_state_dict(payload["scaler"])
     restore_rng_state(payload["rng"], noise)
-    return int(payload["step"]), dict(payload.get("metrics", {}))
+    return (
+        int(payload["step"]),
+        dict(payload.get("metrics", {})),
+        float(payload.get("train_seconds", 0.0)),
+    )
 
 
 def _open_datasets(config: TrainConfig) -> tuple[ClipDataset, ClipDataset | None]:

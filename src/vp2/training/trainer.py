@@ -7,12 +7,15 @@
                                out_dir="runs/fitvid-mini", steps=10_000))
     model = load_model(result.checkpoint)        # vp2.models.load_model
 
-A run directory holds ``config.json`` (the resolved configuration), ``metrics.csv`` (and
-``tb/`` if TensorBoard is installed), ``samples/step_*.png`` (true vs predicted frames of
-validation clips) and ``checkpoints/step_*.pt``. ``resume=True`` continues an interrupted run
-from its newest checkpoint; on the same device the result is bit-identical to an
-uninterrupted run, because every source of randomness is either restored from the checkpoint
-(the posterior-noise generator) or a pure function of ``(seed, step)`` (the data order).
+A run directory holds ``config.json`` (the resolved configuration; at the end also how the
+run finished), ``metrics.csv`` (and ``tb/`` if TensorBoard is installed), ``samples/step_*.png``
+(true vs predicted frames of validation clips) and ``checkpoints/step_*.pt``. ``resume=True``
+continues an interrupted run from its newest checkpoint; on the same device the result is
+bit-identical to an uninterrupted run, because every source of randomness is either restored
+from the checkpoint (the posterior-noise generator) or a pure function of ``(seed, step)`` (the
+data order). ``max_minutes`` is a time budget: the run ends as at ``steps`` after the first
+step at which its training wall time (validation and checkpoint writing left out), summed over
+sessions (kept in every checkpoint), reaches it.
 
 This module is the loop (one optimisation step, logging, validation, checkpoint timing);
 :mod:`vp2.training.setup` builds the run and writes its checkpoints, :mod:`vp2.training.config`
@@ -21,8 +24,11 @@ holds :class:`TrainConfig` and :mod:`vp2.training.batches` the data order and se
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import torch
@@ -35,6 +41,12 @@ from vp2.training.batches import StepBatchSampler, batch_to_device, child_seed
 from vp2.training.config import TrainConfig, TrainResult
 from vp2.training.logger import prediction_grid, save_png
 from vp2.training.setup import TrainingRun, start_run
+
+log = logging.getLogger(__name__)
+
+#: The clock of the training time budget (``TrainConfig.max_minutes``), in seconds; a module
+#: attribute so that tests can replace it with a deterministic one.
+clock = time.monotonic
 
 
 def train(config: TrainConfig, perceptual_fn: PerceptualLoss | None = None) -> TrainResult:
@@ -75,14 +87,20 @@ def train(config: TrainConfig, perceptual_fn: PerceptualLoss | None = None) -> T
         dynamic_ncols=True,
     )
     rate = _StepRate(run.start)
+    budget = None if config.max_minutes is None else 60.0 * config.max_minutes
+    # A resumed run whose earlier sessions spent the budget is finished, like one at `steps`.
+    budget_reached = budget is not None and run.train_seconds >= budget
+    timer = _TrainingTime(run.train_seconds)
     try:
         step = run.start
-        for batch in loader:
+        for batch in loader if not budget_reached else ():
             out, grad_norm = optimisation_step(run, batch)
             step += 1
             bar.update(1)
+            run.train_seconds = timer.seconds()
+            budget_reached = budget is not None and run.train_seconds >= budget
 
-            last = step == config.steps
+            last = step == config.steps or budget_reached
             checkpoint_due = _every(step, config.ckpt_interval) or last
             if step % config.log_interval == 0 or checkpoint_due:
                 # Checked here rather than every step: reading the loss synchronises with the
@@ -91,21 +109,31 @@ def train(config: TrainConfig, perceptual_fn: PerceptualLoss | None = None) -> T
             if step % config.log_interval == 0 or last:
                 train_metrics = _log_train_step(run, step, out, grad_norm, rate)
                 bar.set_postfix(loss=f"{train_metrics['train/loss']:.4g}", refresh=False)
-            if _every(step, config.eval_interval) or last:
-                run_validation(run, step)
-            if checkpoint_due:
-                run.last_checkpoint = run.save_checkpoint(step)
+            with timer.paused():  # they depend on the intervals, not on the training
+                if _every(step, config.eval_interval) or last:
+                    run_validation(run, step)
+                if checkpoint_due:
+                    run.last_checkpoint = run.save_checkpoint(step)
+            if last:
+                break
         if run.last_checkpoint is None:  # defensive: the final step always writes one
             run.last_checkpoint = run.save_checkpoint(step)
     finally:
         bar.close()
         run.logger.close()
+    if budget_reached:
+        log.info(
+            "%s: the budget of %g min was reached at step %d", run.out_dir, config.max_minutes, step
+        )
+    run.record_finish(step, budget_reached)
     return TrainResult(
         out_dir=run.out_dir,
         checkpoint=run.last_checkpoint,
         step=step,
         train_metrics=train_metrics,
         valid_metrics=run.valid_metrics,
+        train_minutes=run.train_seconds / 60,
+        budget_reached=budget_reached,
     )
 
 
@@ -203,6 +231,25 @@ def _check_finite(loss: torch.Tensor, step: int, last_checkpoint: Path | None) -
         )
 
 
+class _TrainingTime:
+    """The clock of the time budget: seconds of training, earlier sessions included, with
+    validation and checkpoint writing left out (:meth:`paused`)."""
+
+    def __init__(self, seconds_before: float):
+        self.start, self.left_out = clock() - seconds_before, 0.0
+
+    def seconds(self) -> float:
+        return clock() - self.start - self.left_out
+
+    @contextlib.contextmanager
+    def paused(self) -> Iterator[None]:
+        began = clock()
+        try:
+            yield
+        finally:
+            self.left_out += clock() - began
+
+
 class _StepRate:
     """Training speed: steps per second between two log rows."""
 
@@ -230,5 +277,6 @@ def _log_train_step(
     if grad_norm is not None:
         metrics["train/grad_norm"] = float(grad_norm)
     metrics["train/steps_per_s"] = rate.update(step, now)
+    metrics["train/minutes"] = run.train_seconds / 60  # all sessions (the budget's clock)
     run.logger.log(step, metrics)
     return metrics

@@ -1,0 +1,270 @@
+"""``results.md`` of ``benchmarks/model_comparison.py``, from the files its stages wrote.
+
+:func:`results_markdown` reads only the comparison's output folder: ``comparison.json`` (the
+settings and the command), ``train/<model>.json``, ``conditioning/<family>.json``,
+``metrics/<name>/metrics.json``, ``runs/<name>/summary.json``, ``study/study.json`` and
+``report.png``. So the page can be rebuilt from a copied folder, and no number in it comes
+from anywhere else.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+from pathlib import Path
+from typing import Any
+
+from vp2.report.study import ALL_TASKS, STUDY_METRICS
+
+#: The metrics table's columns: key in ``metrics.json``, title, scale, format.
+METRIC_COLUMNS = (
+    ("mse", "MSE", 1, ".5f"),
+    ("psnr", "PSNR (dB)", 1, ".2f"),
+    ("ssim", "SSIM ×100", 100, ".2f"),
+    ("lpips_alex", "LPIPS-Alex ×100", 100, ".2f"),
+    ("lpips_vgg", "LPIPS-VGG ×100", 100, ".2f"),
+    ("fvd", "FVD", 1, ".1f"),
+)
+
+
+def _read(path: Path) -> Any:
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _pct(x: float | None) -> str:
+    return "–" if x is None else f"{100 * x:.0f}"
+
+
+def _num(x: float | None) -> str:
+    return "–" if x is None else f"{x:.2f}"
+
+
+def _success(mean: float | None, low: float | None, high: float | None) -> str:
+    return f"{_pct(mean)} [{_pct(low)}, {_pct(high)}]"
+
+
+def results_markdown(out: Path, screenshot_note: str | None) -> str:
+    """The page: budget, success per task, normalised means, action conditioning, metrics,
+    the study and the report's screenshot (``screenshot_note``: why there is none)."""
+    s = json.loads((out / "comparison.json").read_text())
+    lines = [
+        "# Model comparison: five families at one training budget, judged by control",
+        "",
+        f"Written {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')} "
+        f"by `benchmarks/model_comparison.py` (vp2 {s['vp2_version']}, torch "
+        f"{s['torch_version']}); every number below is read from the files under `{out}`.",
+        "",
+        "Rebuild (the same command resumes an interrupted build; on a finished folder it only "
+        "rewrites the study, the report and this page):",
+        "",
+        "```bash",
+        s["command"],
+        "```",
+        "",
+    ]
+    lines += budget_lines(out, s)
+    lines += success_lines(out, s)
+    lines += conditioning_lines(out, s)
+    lines += metrics_lines(out, s)
+    lines += study_lines(out / "study" / "study.json")
+    lines += ["", "## The report", ""]
+    if screenshot_note is None:
+        lines += [
+            "`report.html` is the `vp2 report` page of every run above; its top:",
+            "",
+            "![vp2 report](report.png)",
+        ]
+    else:
+        lines.append(
+            f"`report.html` is the `vp2 report` page of every run above ({screenshot_note})."
+        )
+    return "\n".join(lines) + "\n"
+
+
+def budget_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    lines = [
+        "## Training budget",
+        "",
+        f"Dataset `{s['data']}`, batch {s['batch_size']}, seed 0. Every family got "
+        f"**{s['budget_minutes']:g} minutes** of training wall time (`vp2 train --max-minutes`: "
+        "optimisation steps with their data loading, summed over resumed sessions; validation "
+        "and checkpoint writing left out. MaskViT's budget is split 1/3 tokenizer, 2/3 "
+        "transformer). Steps reached depend on the device and its load.",
+        "",
+        "| family | model (preset) | parameters | budget (min) | minutes used | steps reached "
+        "| device | threads |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for family in s["families"]:
+        for stage in s["family_stages"][family]:
+            r = _read(out / "train" / f"{stage['model']}.json")
+            overrides = "".join(f" {k}={v}" for k, v in stage["overrides"])
+            name = f"{stage['model']} ({stage['preset']}{overrides})"
+            if r is None:
+                lines.append(f"| {family} | {name} | – | – | – | – | – | – |")
+                continue
+            params = "–" if r.get("parameters") is None else f"{r['parameters'] / 1e6:.2f} M"
+            steps = f"{r['step']:,}" + ("" if r["budget_reached"] else " (budget not reached)")
+            lines.append(
+                f"| {family} | {name} | {params} | {r['budget_minutes']:.3g} | "
+                f"{r['train_minutes']:.3g} | {steps} | {r['device']} | {r['threads'] or '–'} |"
+            )
+    return [*lines, ""]
+
+
+def success_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    names = s["run_names"]
+    summaries = {name: _read(out / "runs" / name / "summary.json") for name in names}
+    tasks: list[str] = []
+    oracle: dict[str, float] = {}
+    for summary in summaries.values():
+        for row in summary["tasks"] if summary else []:
+            if row["task"] not in tasks:
+                tasks.append(row["task"])
+            if row.get("oracle_mean") is not None:
+                oracle[row["task"]] = row["oracle_mean"]
+    lines = [
+        "## Success per task",
+        "",
+        f"`vp2 run` on {', '.join(s['tasks'])}: the first {s['num_instances']} instance(s) of "
+        f"each task, seeds {', '.join(map(str, s['seeds']))}, MPPI with {s['num_samples']} "
+        f"planner samples (SPEC: 200, 800 for open_slide/open_drawer), {s['num_steps']} control "
+        "steps. Cell: success % mean over seeds [min, max] (trials). The shipped oracle's column "
+        "is its own measurement (how: the first note), not a run of this comparison.",
+        "",
+        "| task | " + " | ".join(names) + " | oracle (shipped) |",
+        "|---" * (len(names) + 2) + "|",
+    ]
+    for task in tasks:
+        cells = []
+        for name in names:
+            rows = (summaries[name] or {}).get("tasks", [])
+            row = next((r for r in rows if r["task"] == task), None)
+            cells.append(
+                "–" if row is None
+                else f"{_success(row['mean'], row['min'], row['max'])} ({row['num_trials']})"
+            )  # fmt: skip
+        lines.append(f"| {task} | " + " | ".join(cells) + f" | {_pct(oracle.get(task))} |")
+    means, normalised = [], []
+    for x in summaries.values():
+        x = x or {}
+        means.append(f"**{_pct(x.get('mean'))}** [{_pct(x.get('min'))}, {_pct(x.get('max'))}]")
+        normalised.append(
+            "–" if x.get("normalised") is None
+            else f"**{x['normalised']:.2f}** [{_num(x.get('normalised_min'))}, "
+            f"{_num(x.get('normalised_max'))}]"
+        )  # fmt: skip
+    oracle_mean = sum(oracle.values()) / len(oracle) if oracle else None
+    lines.append("| **mean over tasks** | " + " | ".join(means) + f" | {_pct(oracle_mean)} |")
+    lines.append("| **oracle-normalised mean** | " + " | ".join(normalised) + " | 1 |")
+    source = next(
+        (x["oracle_source"] for x in summaries.values() if x and x.get("oracle_source")), None
+    )
+    lines += ["", f"- normalised by the {source}" if source else "- not oracle-normalised"]
+    warnings = sorted({w for x in summaries.values() if x for w in x.get("warnings", [])})
+    return lines + [f"- {w}" for w in warnings] + [""]
+
+
+def conditioning_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    lines = [
+        "## Action conditioning (held-out clips)",
+        "",
+        "Prediction MSE under each clip's true actions and under another clip's "
+        f"(`benchmarks/action_conditioning.py`: up to {s['conditioning_clips']} clips of the "
+        f"valid split, {s['conditioning_samples']} sampling seed(s)). A ratio shuffled / true "
+        "above 1: the model uses its actions. Interval: 95% bootstrap over clips; wins: clips "
+        "where the true actions gave the lower error (changing pixels); p: two-sided sign test.",
+        "",
+        "| family | ratio, all pixels [95% CI] | ratio, changing pixels [95% CI] | wins | p |",
+        "|---|---|---|---|---|",
+    ]
+    for family in s["families"]:
+        r = _read(out / "conditioning" / f"{family}.json")
+        if r is None:
+            lines.append(f"| {family} | – | – | – | – |")
+            continue
+        a, m = r["all_pixels"], r["moving_pixels"]
+        lines.append(
+            f"| {family} | {a['ratio']:.3f} [{a['ci'][0]:.3f}, {a['ci'][1]:.3f}] | "
+            f"{m['ratio']:.3f} [{m['ci'][0]:.3f}, {m['ci'][1]:.3f}] | "
+            f"{m['wins']}/{m['n']} | {m['sign_p']:.2g} |"
+        )
+    return [*lines, ""]
+
+
+def metrics_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    lines = [
+        "## Perceptual metrics (held-out clips)",
+        "",
+        "`vp2 metrics` on a seeded sample of the valid split (the same clips for every model).",
+        "",
+        "| model | " + " | ".join(c[1] for c in METRIC_COLUMNS) + " | clips |",
+        "|---" * (len(METRIC_COLUMNS) + 2) + "|",
+    ]
+    skipped: set[str] = set()
+    for name in s["metrics_names"]:
+        result = _read(out / "metrics" / name / "metrics.json")
+        if result is None:
+            continue
+        values = result["metrics"]
+        skipped |= set(result["skipped"])
+        cells = [
+            "n/a" if values.get(k) is None else f"{values[k] * scale:{fmt}}"
+            for k, _, scale, fmt in METRIC_COLUMNS
+        ]
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {result['num_clips']} |")
+    notes = []
+    if skipped:
+        notes.append(
+            f"n/a: {', '.join(sorted(skipped))} skipped, the weight files are not on this "
+            "machine (docs/metrics.md says where they go)"
+        )
+    if not s["lpips"] or not s["fvd"]:
+        notes.append("n/a: LPIPS or FVD not asked for (`--lpips`, `--no-fvd` or `--smoke`)")
+    return lines + ([""] + [f"- {n}" for n in notes] if notes else []) + [""]
+
+
+def study_lines(path: Path) -> list[str]:
+    data = _read(path)
+    lines = ["## Metrics versus control (`vp2 study`)", ""]
+    if data is None:
+        return [*lines, "(no study)"]
+    labels = {m.key: m.label for m in STUDY_METRICS}
+    lines += [
+        f"All tasks (`{path.parent.name}/study.md` has the table of every task, "
+        "`scatter_*.svg` the plots):",
+        "",
+        "| model | " + " | ".join(labels.values()) + " | success % mean [min, max] | trials |",
+        "|---" * (len(labels) + 3) + "|",
+    ]
+    for row in data["rows"][ALL_TASKS]:
+        cells = ["n/a" if row["metrics"][k] is None else f"{row['metrics'][k]:.3g}" for k in labels]
+        success = (
+            "n/a" if row["success"] is None
+            else _success(row["success"], row["success_min"], row["success_max"])
+        )  # fmt: skip
+        lines.append(
+            f"| {row['label']} | " + " | ".join(cells) + f" | {success} | {row['num_trials']} |"
+        )
+
+    def rp(value: float | None, p: float | None) -> str:
+        if value is None:
+            return "undefined"
+        return f"{value:+.3f}" + ("" if p is None else f" (p {p:.2g})")
+
+    lines += [
+        "",
+        "Rank correlation across models between each metric and success (a metric that agrees "
+        "with control correlates negatively for FVD and LPIPS, positively for SSIM):",
+        "",
+        "| scope | metric | models | Spearman ρ | Kendall τ-b | note |",
+        "|---|---|---|---|---|---|",
+    ]
+    for c in data["correlations"]:
+        lines.append(
+            f"| {c['scope']} | {labels[c['metric']]} | {c['n']} | "
+            f"{rp(c['spearman'], c['spearman_p'])} | {rp(c['kendall'], c['kendall_p'])} | "
+            f"{c['note']} |"
+        )
+    notes = data.get("notes", [])
+    return lines + ([""] + [f"- {n}" for n in notes] if notes else [])

@@ -1,0 +1,137 @@
+"""End to end: ``benchmarks/model_comparison.py --smoke`` on a tiny collected RoboDesk dataset,
+then again to show that it resumes (slow: about a minute per invocation on a loaded 2-core CPU).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from vp2.benchmark.results import read_trials
+from vp2.data.collect import CollectionConfig, collect
+
+REPO = Path(__file__).resolve().parents[2]
+SCRIPT = REPO / "benchmarks" / "model_comparison.py"
+FAMILIES = ("fitvid", "struct_vrnn")
+RUNS = (*FAMILIES, "repeat_last_frame", "random")
+TASK = "robodesk/push_red"  # the task --smoke runs
+
+# 3 trajectories of 15 actions at 64x64 (the benchmark's size): 10 train and 5 valid clips.
+TINY = CollectionConfig(
+    env="robodesk",
+    trajectories_per_stream=3,
+    streams=(TASK,),
+    image_size=64,
+    horizon=15,
+    chunk_size=3,
+    valid_every=3,
+)
+
+
+def _compare(data: Path, out: Path) -> None:
+    command = [sys.executable, str(SCRIPT), "--smoke", "--data", str(data), "--out", str(out),
+               "--families", *FAMILIES, "--threads", "1"]  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    proc = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
+
+
+def _log(out: Path) -> list[list[dict]]:
+    """``log.jsonl`` grouped by invocation, in order."""
+    lines = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    invocations = list(dict.fromkeys(line["invocation"] for line in lines))
+    return [[x for x in lines if x["invocation"] == i] for i in invocations]
+
+
+def _table(markdown: str, header_start: str) -> list[list[str]]:
+    """The rows (cells) of the Markdown table whose header row starts with ``header_start``."""
+    lines = markdown.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(header_start))
+    rows = []
+    for line in lines[start:]:
+        if not line.startswith("|"):
+            break
+        rows.append([c.strip() for c in line.strip("|").split("|")])
+    return rows
+
+
+@pytest.mark.slow
+def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
+    data = collect(TINY, tmp_path / "data", workers=1, progress=False)
+    out = tmp_path / "comparison"
+    _compare(data, out)
+
+    results = (out / "results.md").read_text()
+    # Success: a row per task, a cell per agent plus the shipped oracle's, then the means.
+    table = _table(results, "| task |")
+    assert table[0] == ["task", *RUNS, "oracle (shipped)"]
+    assert [row[0] for row in table[2:]] == [
+        TASK,
+        "**mean over tasks**",
+        "**oracle-normalised mean**",
+    ]
+    assert all(cell.endswith("(1)") for cell in table[2][1:-1])  # 1 trial each
+    for name in RUNS:
+        records = read_trials(out / "runs" / name)
+        assert [(r["task"], r["instance"], r["seed"]) for r in records] == [(TASK, 0, 0)]
+        assert records[0]["error"] is None
+    # The budget stopped each training run, which wrote its final checkpoint.
+    budget = _table(results, "| family |")
+    assert [row[0] for row in budget[2:]] == list(FAMILIES)
+    for family in FAMILIES:
+        record = json.loads((out / "train" / f"{family}.json").read_text())
+        assert record["budget_reached"] and record["step"] >= 1
+        assert record["train_minutes"] >= record["budget_minutes"] == 0.1
+        assert Path(record["checkpoint"]).is_file()
+        assert f"| {family} | {family} (" in results
+    # Action conditioning: finite ratios inside their bootstrap intervals, in the table too.
+    for family in FAMILIES:
+        r = json.loads((out / "conditioning" / f"{family}.json").read_text())
+        for key in ("all_pixels", "moving_pixels"):
+            low, high = r[key]["ci"]
+            assert math.isfinite(r[key]["ratio"]) and low <= r[key]["ratio"] <= high
+        assert r["all_pixels"]["n"] == 5  # every held-out clip of the tiny dataset
+        assert f"| {family} | {r['all_pixels']['ratio']:.3f} [" in results
+    # Metrics of every predictor; the study ranked them; the report page exists.
+    for name in (*FAMILIES, "repeat_last_frame"):
+        metrics = json.loads((out / "metrics" / name / "metrics.json").read_text())
+        assert metrics["num_clips"] == 5 and 0 < metrics["metrics"]["mse"] < 1
+        assert f"| {name} | {metrics['metrics']['mse']:.5f} |" in results
+    assert json.loads((out / "study" / "study.json").read_text())["labels"] == [
+        *FAMILIES,
+        "repeat_last_frame",
+    ]
+    assert (out / "report.html").stat().st_size > 10_000
+    if "![vp2 report](report.png)" in results:
+        assert (out / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    else:
+        assert "no screenshot" in results
+
+    # Again, with one stage's output removed: only that stage runs; nothing is trained or
+    # planned again.
+    checkpoints = {f: json.loads((out / "train" / f"{f}.json").read_text()) for f in FAMILIES}
+    mtimes = {f: Path(c["checkpoint"]).stat().st_mtime_ns for f, c in checkpoints.items()}
+    trials = {name: (out / "runs" / name / "trials.jsonl").read_text() for name in RUNS}
+    (out / "conditioning" / "fitvid.json").unlink()
+    _compare(data, out)
+    first, second = _log(out)
+    status = {(x["stage"], x["name"]): x["status"] for x in second}
+    assert {status[("train", f)] for f in FAMILIES} == {"done earlier"}
+    assert status[("conditioning", "fitvid")] == "ran"
+    assert status[("conditioning", "struct_vrnn")] == "done earlier"
+    assert {status[("metrics", n)] for n in (*FAMILIES, "repeat_last_frame")} == {"done earlier"}
+    assert [x["num_run"] for x in second if x["stage"] == "run"] == [0, 0, 0, 0]
+    assert [x["num_run"] for x in first if x["stage"] == "run"] == [1, 1, 1, 1]
+    for family, record in checkpoints.items():
+        assert Path(record["checkpoint"]).stat().st_mtime_ns == mtimes[family]
+    for name in RUNS:
+        assert (out / "runs" / name / "trials.jsonl").read_text() == trials[name]
+    assert (out / "results.md").read_text().split("## Training budget")[1] == results.split(
+        "## Training budget"
+    )[1]
