@@ -12,6 +12,7 @@ from vp2.classifiers.train import (
     ClassifierTrainConfig,
     classification_metrics,
     evaluate,
+    learning_rate,
     train_classifier,
 )
 
@@ -58,3 +59,29 @@ def test_balanced_pos_weight_is_negatives_over_positives():
         negatives / frames.positives
     )
     assert ClassifierTrainConfig().resolved_pos_weight(frames) is None
+
+
+def test_cosine_schedule_decays_from_lr_to_zero_and_constant_stays():
+    cosine = ClassifierTrainConfig(lr=1e-3, steps=100, lr_schedule="cosine")
+    assert learning_rate(cosine, 1) == pytest.approx(1e-3)
+    assert learning_rate(cosine, 51) == pytest.approx(0.5e-3)
+    assert learning_rate(cosine, 100) == pytest.approx(0.5e-3 * (1 + np.cos(np.pi * 0.99)))
+    rates = [learning_rate(cosine, s) for s in range(1, 101)]
+    assert all(a > b for a, b in zip(rates, rates[1:], strict=False))
+    constant = ClassifierTrainConfig(lr=1e-3, steps=100)
+    assert {learning_rate(constant, s) for s in (1, 50, 100)} == {1e-3}
+    with pytest.raises(ValueError, match="lr_schedule must be one of constant, cosine"):
+        ClassifierTrainConfig(lr_schedule="linear")
+
+
+def test_cosine_training_changes_the_result_and_still_learns():
+    train, held_out = _separable(256, 0), _separable(128, 1)
+    constant = train_classifier(train, ClassifierTrainConfig(steps=150, batch_size=32, seed=3))
+    config = ClassifierTrainConfig(steps=150, batch_size=32, seed=3, lr_schedule="cosine")
+    cosine = train_classifier(train, config, log_every=1000)
+    assert evaluate(cosine, held_out)["accuracy"] >= 0.95
+    differs = [
+        not torch.equal(a, b)
+        for a, b in zip(constant.state_dict().values(), cosine.state_dict().values(), strict=True)
+    ]
+    assert any(differs)

@@ -35,6 +35,8 @@ def test_command_trains_saves_and_registers(tmp_path, dataset):
             "paper",
             "--paper-steps",
             "2",
+            "--lr-schedule",
+            "cosine",
             "--out",
             str(tmp_path / "run"),
         ]
@@ -46,7 +48,8 @@ def test_command_trains_saves_and_registers(tmp_path, dataset):
     assert (
         entry["training"]["steps"] == 20 and metrics["paper"]["push_red"]["training"]["steps"] == 2
     )
-    assert "--paper-steps 2" in entry["command"]
+    assert "--paper-steps 2" in entry["command"] and "--lr-schedule cosine" in entry["command"]
+    assert entry["training"]["lr_schedule"] == "cosine"
     loaded = load_classifier(tmp_path / "run" / "push_red.pt")
     valid = load_frames(dataset[0], "push_red", "valid")
     assert evaluate(loaded, valid) == entry["heldout"]

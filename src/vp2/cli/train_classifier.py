@@ -25,7 +25,7 @@ from vp2.classifiers.registry import (
     short_task,
     update_metrics,
 )
-from vp2.classifiers.train import ClassifierTrainConfig, train_task
+from vp2.classifiers.train import LR_SCHEDULES, ClassifierTrainConfig, train_task
 from vp2.data.storage import DatasetError
 from vp2.envs import ROBODESK_TASKS
 
@@ -58,6 +58,12 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         type=int,
         default=None,
         help="gradient steps of the paper's network (default: --steps)",
+    )
+    p.add_argument(
+        "--lr-schedule",
+        choices=LR_SCHEDULES,
+        default="constant",
+        help="learning rate over the steps: constant (the paper's) or cosine (decays to 0)",
     )
     p.add_argument("--batch-size", type=int, default=64, help="frames per gradient step")
     p.add_argument(
@@ -105,6 +111,8 @@ def _command_line(args: argparse.Namespace) -> str:
     parts += [f"--batch-size {args.batch_size}", f"--shift {args.shift}", f"--seed {args.seed}"]
     if args.label != "success":
         parts.append(f"--label {args.label}")
+    if args.lr_schedule != "constant":
+        parts.append(f"--lr-schedule {args.lr_schedule}")
     if args.pos_weight is not None:
         parts.append(f"--pos-weight {args.pos_weight}")
     if args.threads is not None:
@@ -140,6 +148,7 @@ def run_from_args(args: argparse.Namespace) -> int:
                 arch=arch,
                 steps=steps,
                 batch_size=args.batch_size,
+                lr_schedule=args.lr_schedule,
                 shift=args.shift,
                 pos_weight=pos_weight,
                 seed=args.seed,
