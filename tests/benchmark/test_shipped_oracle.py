@@ -42,6 +42,7 @@ def write_oracle_run(
     *,
     model: str = "simulator",
     suite: Path | None = None,
+    classifier: dict | None = None,
     **config_overrides,
 ) -> Path:
     """A simulator-oracle run directory as the runner leaves it (config.yaml, trials.jsonl);
@@ -65,6 +66,8 @@ def write_oracle_run(
             "finished_at": f"2026-11-2{s}T10:00:00+00:00",
             "error": None if ok is not None else {"type": "SimError", "message": "x"},
         }
+        if classifier is not None:
+            record["agent"] = {"agent": "planning", "classifier": classifier}
         lines.append(json.dumps(record, sort_keys=True))
     (run_dir / "trials.jsonl").write_text("\n".join(lines) + "\n")
     return run_dir
@@ -135,6 +138,18 @@ def test_describe_names_the_tasks_with_other_samples(tmp_path):
                               tmp_path / "o.json")
     line = load_shipped_oracle(path).describe()
     assert "200 planner samples (800 on robodesk/open_drawer, robodesk/open_slide)" in line
+
+
+def test_build_records_the_classifier_and_refuses_mixed_ones(tmp_path):
+    first = {"sha256": "aaaa", "dataset": "data/d", "heldout_accuracy": 0.98}
+    data = build_oracle_asset([write_oracle_run(tmp_path / "one", classifier=first)])
+    assert data["tasks"][TASK]["classifier"] == first
+    assert "classifier" not in build_oracle_asset(
+        [write_oracle_run(tmp_path / "none")])["tasks"][TASK]
+    a = write_oracle_run(tmp_path / "a", {(0, 0): True}, classifier=first)
+    b = write_oracle_run(tmp_path / "b", {(0, 1): True}, classifier={**first, "sha256": "bbbb"})
+    with pytest.raises(ValueError, match="2 different success classifiers"):
+        build_oracle_asset([a, b])
 
 
 def _other_suite(tmp_path: Path) -> Path:

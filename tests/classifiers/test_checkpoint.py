@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import pytest
 import torch
 
@@ -31,7 +33,8 @@ def test_save_load_round_trip_gives_identical_logits(tmp_path, arch):
     x = torch.rand(7, 3, size, size)
     with torch.no_grad():
         torch.testing.assert_close(loaded(x), net(x), atol=0, rtol=0)
-    assert loaded.meta == meta and not any(p.requires_grad for p in loaded.parameters())
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    assert loaded.meta == {**meta, "sha256": digest} and not any(p.requires_grad for p in loaded.parameters())
     assert read_classifier_checkpoint(path)["meta"] == meta
     assert not list(tmp_path.glob(".*.tmp"))
 

@@ -119,3 +119,26 @@ def test_random_actions_are_seeded_and_uniform():
     assert a.shape == (2000, 5) and a.min() >= -1 and a.max() <= 1
     np.testing.assert_allclose(a.mean(axis=0), 0, atol=0.06)
     np.testing.assert_allclose(a.var(axis=0), 1 / 3, atol=0.03)
+
+
+def test_trial_records_name_the_classifier_file_they_planned_with(tmp_path):
+    import hashlib
+
+    from vp2.classifiers.checkpoint import load_classifier, save_classifier
+    from vp2.classifiers.networks import build_classifier
+    from vp2.classifiers.registry import ClassifierRegistry
+
+    meta = {"arch": "ours", "task": "robodesk/push_red", "image_size": 64,
+            "data": {"dataset": "data/x"}, "heldout": {"accuracy": 0.98765}}
+    path = save_classifier(tmp_path / "push_red.pt", build_classifier("ours"), meta)
+    registry = ClassifierRegistry()
+    registry.register("robodesk/push_red", lambda device: load_classifier(path, device))
+    model = RepeatLastFrame(action_dim=5, image_size=64)
+    agent = PlanningAgent(model, PlannerConfig(num_samples=4), classifiers=registry)
+    agent.reset("robodesk/push_red", np.zeros((64, 64, 3), np.uint8), seed=0)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    assert agent.describe()["cost"] == "pixel+classifier"
+    assert agent.describe()["classifier"] == {
+        "sha256": digest[:16], "dataset": "data/x", "heldout_accuracy": 0.9877}
+    agent.reset("robodesk/push_green", np.zeros((64, 64, 3), np.uint8), seed=0)
+    assert agent.describe()["cost"] == "pixel_only" and "classifier" not in agent.describe()

@@ -6,6 +6,7 @@ The asset's format and how runs are normalised by it: :mod:`vp2.benchmark.shippe
 from __future__ import annotations
 
 import datetime
+import json
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -47,6 +48,22 @@ def _num_samples(task: str, config: Mapping[str, Any]) -> int | None:
 def _finished_date(records: Iterable[dict[str, Any]]) -> str | None:
     stamps = [r["finished_at"] for r in records if r.get("finished_at")]
     return max(stamps)[:10] if stamps else None
+
+
+def _classifier_of(task: str, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
+    """The classifier a task's trials planned with (their records' ``agent.classifier``);
+    ``{}`` where none was recorded. Trials that used different classifiers are refused."""
+    seen = {
+        json.dumps(r["agent"]["classifier"], sort_keys=True)
+        for r in records
+        if isinstance(r.get("agent"), dict) and r["agent"].get("classifier")
+    }
+    if len(seen) > 1:
+        raise ValueError(
+            f"{task}: the trials planned with {len(seen)} different success classifiers "
+            f"({', '.join(sorted(seen))}); build the oracle from runs with one classifier per task"
+        )
+    return json.loads(seen.pop()) if seen else {}
 
 
 def build_oracle_asset(
@@ -165,6 +182,9 @@ def build_oracle_asset(
             "seeds": sorted(t.per_seed),
             "num_samples": samples[name],
         }
+        classifier = _classifier_of(name, task_records)
+        if classifier:
+            tasks[name]["classifier"] = classifier
     assert settings is not None
     return {
         "format": ASSET_FORMAT,

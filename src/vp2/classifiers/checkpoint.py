@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 from typing import Any
@@ -48,14 +49,24 @@ def read_classifier_checkpoint(path: str | Path) -> dict[str, Any]:
     return ckpt
 
 
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes (hex): which classifier a trial planned with."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def load_classifier(path: str | Path, device: str | torch.device = "cpu") -> FrameClassifierModule:
     """A saved classifier, ready for the planning cost: eval mode, parameters frozen.
 
     Returns:
-        ``images (M, 3, H, W) in [0, 1] -> logits (M,)`` on ``device``.
+        ``images (M, 3, H, W) in [0, 1] -> logits (M,)`` on ``device``; its ``meta`` is the
+        file's metadata plus ``sha256``, the file's hash.
     """
     ckpt = read_classifier_checkpoint(path)
-    meta = ckpt["meta"]
+    meta = {**ckpt["meta"], "sha256": file_sha256(path)}
     network = build_classifier(meta["arch"], int(meta["image_size"]))
     network.load_state_dict(ckpt["state_dict"])
     module = FrameClassifierModule(network, meta["task"], meta).to(device).eval()

@@ -96,6 +96,22 @@ class SimulatorStateModel(Protocol):
     def set_simulator_state(self, env_meta: dict[str, Any], state: np.ndarray) -> None: ...
 
 
+def classifier_provenance(classifier: Any) -> dict[str, Any]:
+    """What a trial record says of the classifier in its cost: the file's hash, the dataset it
+    was trained on and its held-out accuracy, where the classifier carries that metadata."""
+    meta = getattr(classifier, "meta", None) or {}
+    out: dict[str, Any] = {}
+    if "sha256" in meta:
+        out["sha256"] = meta["sha256"][:16]
+    dataset = (meta.get("data") or {}).get("dataset")
+    if dataset:
+        out["dataset"] = dataset
+    accuracy = (meta.get("heldout") or {}).get("accuracy")
+    if accuracy is not None:
+        out["heldout_accuracy"] = round(float(accuracy), 4)
+    return out or {"class": type(classifier).__name__}
+
+
 def frames_to_tensor(frames: np.ndarray, device: torch.device) -> Tensor:
     """``(..., H, W, 3)`` uint8 -> ``(..., 3, H, W)`` float32 in [0, 1] on ``device``."""
     # A copy: suite arrays are read-only, which torch warns about. The channel axis moves by a
@@ -166,9 +182,13 @@ class PlanningAgent:
         self.cost_kind: str = "none"
         self._task: str | None = None
         self._settings: dict[str, Any] = {}
+        self._classifier: dict[str, Any] = {}
 
     def describe(self) -> dict[str, Any]:
-        return {"agent": self.name, "planner": self._settings, "cost": self.cost_kind}
+        out = {"agent": self.name, "planner": self._settings, "cost": self.cost_kind}
+        if self._classifier:
+            out["classifier"] = self._classifier
+        return out
 
     def reset(self, task: str, goal_image: np.ndarray, seed: int) -> None:
         """Starts a trial: builds the optimizer and cost for ``task``, seeds the generators."""
@@ -179,6 +199,11 @@ class PlanningAgent:
         goal = frames_to_tensor(goal_image, self.device)  # (3, H, W)
         self.cost, self.cost_kind = build_cost(
             task, goal, self.cost_mode, self.classifiers, self.device
+        )
+        self._classifier = (
+            classifier_provenance(self.classifiers.get(task, self.device))
+            if self.cost_kind == "pixel+classifier"
+            else {}
         )
         # Independent streams: the planner's samples must not shift when the model draws more
         # or less noise, and recording predictions must not change the plans.
