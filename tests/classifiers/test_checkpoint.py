@@ -45,3 +45,18 @@ def test_checkpoint_errors_are_clear(tmp_path):
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match="junk.pt: not a readable classifier checkpoint"):
         load_classifier(tmp_path / "junk.pt")
+
+
+def test_a_wider_network_round_trips_and_the_paper_net_has_one_size(tmp_path):
+    wide = build_classifier("ours", width=2).eval()
+    assert sum(p.numel() for p in wide.parameters()) > 3 * sum(
+        p.numel() for p in build_classifier("ours").parameters())
+    meta = {"arch": "ours", "task": "robodesk/push_red", "image_size": 64, "width": 2}
+    loaded = load_classifier(save_classifier(tmp_path / "w.pt", wide, meta))
+    x = torch.rand(3, 3, 64, 64)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(x), wide(x), atol=0, rtol=0)
+    with pytest.raises(ValueError, match="width applies to the 'ours' network only"):
+        build_classifier("paper", width=2)
+    with pytest.raises(ValueError, match="width must be a positive integer"):
+        build_classifier("ours", width=0)

@@ -37,6 +37,8 @@ def test_command_trains_saves_and_registers(tmp_path, dataset):
             "2",
             "--lr-schedule",
             "cosine",
+            "--width",
+            "2",
             "--out",
             str(tmp_path / "run"),
         ]
@@ -49,7 +51,8 @@ def test_command_trains_saves_and_registers(tmp_path, dataset):
         entry["training"]["steps"] == 20 and metrics["paper"]["push_red"]["training"]["steps"] == 2
     )
     assert "--paper-steps 2" in entry["command"] and "--lr-schedule cosine" in entry["command"]
-    assert entry["training"]["lr_schedule"] == "cosine"
+    assert entry["training"]["lr_schedule"] == "cosine" and "--width 2" in entry["command"]
+    assert entry["width"] == 2 and metrics["paper"]["push_red"]["width"] == 1
     loaded = load_classifier(tmp_path / "run" / "push_red.pt")
     valid = load_frames(dataset[0], "push_red", "valid")
     assert evaluate(loaded, valid) == entry["heldout"]

@@ -67,7 +67,7 @@ def load_classifier(path: str | Path, device: str | torch.device = "cpu") -> Fra
     """
     ckpt = read_classifier_checkpoint(path)
     meta = {**ckpt["meta"], "sha256": file_sha256(path)}
-    network = build_classifier(meta["arch"], int(meta["image_size"]))
+    network = build_classifier(meta["arch"], int(meta["image_size"]), int(meta.get("width", 1)))
     network.load_state_dict(ckpt["state_dict"])
     module = FrameClassifierModule(network, meta["task"], meta).to(device).eval()
     module.requires_grad_(False)

@@ -111,11 +111,23 @@ class SuccessClassifier(nn.Module):
 _NETWORKS: dict[str, type[nn.Module]] = {"ours": SuccessClassifier, "paper": PaperClassifier}
 
 
-def build_classifier(arch: str, image_size: int = IMAGE_SIZE) -> nn.Module:
-    """A freshly initialised classifier network (``"ours"`` or ``"paper"``)."""
+def build_classifier(arch: str, image_size: int = IMAGE_SIZE, width: int = 1) -> nn.Module:
+    """A freshly initialised classifier network (``"ours"`` or ``"paper"``).
+
+    ``width`` multiplies the channels and the hidden units of ours (1: the 58 K-parameter
+    network; 2: 4x the multiply-adds); the paper's network has one size.
+    """
     if arch not in _NETWORKS:
         raise ValueError(f"unknown classifier arch {arch!r}; choose one of {', '.join(ARCHS)}")
-    return _NETWORKS[arch](image_size=image_size)
+    if width < 1:
+        raise ValueError(f"width must be a positive integer, got {width}")
+    if arch != "ours":
+        if width != 1:
+            raise ValueError(f"width applies to the 'ours' network only, not {arch!r}")
+        return _NETWORKS[arch](image_size=image_size)
+    return SuccessClassifier(
+        image_size=image_size, widths=tuple(w * width for w in (16, 32, 64, 32)), hidden=32 * width
+    )
 
 
 def multiply_adds(model: nn.Module, image_size: int = IMAGE_SIZE) -> int:

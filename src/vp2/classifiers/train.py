@@ -53,6 +53,7 @@ class ClassifierTrainConfig:
         lr: Adam learning rate (model-specs §6: 1e-3).
         lr_schedule: ``"constant"`` (the paper's) or ``"cosine"``: the rate decays from ``lr``
             to 0 along a half cosine over ``steps``.
+        width: Channel multiplier of ours (:func:`vp2.classifiers.networks.build_classifier`).
         grad_clip: Gradient norm clip (model-specs §6: 1).
         shift: Augmentation: random translation of each training frame by up to ``shift``
             pixels (edge pixels repeated); 0 disables it.
@@ -68,6 +69,7 @@ class ClassifierTrainConfig:
     batch_size: int = 64
     lr: float = 1e-3
     lr_schedule: str = "constant"
+    width: int = 1
     grad_clip: float = 1.0
     shift: int = 2
     pos_weight: float | str | None = None
@@ -131,7 +133,7 @@ def train_classifier(
     # leaves the caller's global random state untouched.
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
-        model = build_classifier(config.arch, image_size).to(device)
+        model = build_classifier(config.arch, image_size, config.width).to(device)
     generator = torch.Generator().manual_seed(config.seed + 1)
     images = torch.from_numpy(np.ascontiguousarray(train.images))  # (N, H, W, 3) uint8, CPU
     labels = torch.from_numpy(train.labels.astype(np.float32))  # (N,)
@@ -243,6 +245,7 @@ def train_task(
         "arch": config.arch,
         "task": full,
         "image_size": int(train.images.shape[1]),
+        "width": config.width,
         "heldout": metrics,
         "train": {k: train_metrics[k] for k in ("accuracy", "precision", "recall")},
         "data": {

@@ -65,6 +65,12 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         default="constant",
         help="learning rate over the steps: constant (the paper's) or cosine (decays to 0)",
     )
+    p.add_argument(
+        "--width",
+        type=int,
+        default=1,
+        help="channel multiplier of ours (1: 58 K parameters; 2: 4x the multiply-adds)",
+    )
     p.add_argument("--batch-size", type=int, default=64, help="frames per gradient step")
     p.add_argument(
         "--shift", type=int, default=2, help="random-shift augmentation in pixels (0: off)"
@@ -111,6 +117,8 @@ def _command_line(args: argparse.Namespace) -> str:
     parts += [f"--batch-size {args.batch_size}", f"--shift {args.shift}", f"--seed {args.seed}"]
     if args.label != "success":
         parts.append(f"--label {args.label}")
+    if args.width != 1:
+        parts.append(f"--width {args.width}")
     if args.lr_schedule != "constant":
         parts.append(f"--lr-schedule {args.lr_schedule}")
     if args.pos_weight is not None:
@@ -149,6 +157,7 @@ def run_from_args(args: argparse.Namespace) -> int:
                 steps=steps,
                 batch_size=args.batch_size,
                 lr_schedule=args.lr_schedule,
+                width=args.width if arch == "ours" else 1,
                 shift=args.shift,
                 pos_weight=pos_weight,
                 seed=args.seed,
