@@ -17,13 +17,11 @@ import argparse
 import numpy as np
 import torch
 
+from scripted_plan_rank import first_step_candidates, predict_from_start  # this folder
 from vp2.classifiers.registry import CLASSIFIERS
 from vp2.data.suite import TaskSuite
-from vp2.models.simulator import SimulatorModel
 from vp2.planning.agent import frames_to_tensor
 from vp2.planning.planner import PlannerConfig, build_cost, planner_settings
-from vp2.planning.samplers import CorrelatedNoiseSampler
-from vp2.spec import SIGMA
 
 
 def main() -> None:
@@ -38,14 +36,8 @@ def main() -> None:
     env_name = args.task.split("/")[0]
     settings = planner_settings(args.task, PlannerConfig(num_samples=args.num_samples))
     action_dim = 5 if env_name == "robodesk" else 4
-    candidates = CorrelatedNoiseSampler().sample(
-        torch.zeros(10, action_dim), SIGMA[env_name], args.num_samples,
-        torch.Generator().manual_seed(0))
-    model = SimulatorModel(action_dim)
-    model.set_simulator_state(inst.env_meta, inst.init_state)
-    context = torch.zeros(args.num_samples, 2, 3, 64, 64)
-    actions = torch.cat([torch.zeros(args.num_samples, 1, action_dim), candidates], dim=1)
-    frames = model.predict(context, actions.float())
+    candidates = first_step_candidates(env_name, action_dim, args.num_samples)
+    frames = predict_from_start(inst, candidates)
     goal = frames_to_tensor(inst.goal_image, torch.device("cpu"))
     print(f"{args.task} instance {args.instance}, {args.num_samples} candidates, "
           f"planner {settings}")
@@ -61,7 +53,6 @@ def main() -> None:
             w = torch.softmax(gamma * score, dim=0)
             print(f"  [{kind}] gamma {gamma:g}: ESS {float(1 / (w ** 2).sum()):.1f} of "
                   f"{args.num_samples}, max weight {float(w.max()):.3f}")
-    model.close()
 
 
 if __name__ == "__main__":

@@ -53,6 +53,27 @@ def scripted_plan(actions: np.ndarray, horizon: int) -> torch.Tensor:
     return torch.as_tensor(plan, dtype=torch.float32)
 
 
+def first_step_candidates(env_name: str, action_dim: int, n: int) -> torch.Tensor:
+    """``(n, HORIZON, A)`` float32: the SPEC sampler's draws at a first planning step (seed 0)."""
+    return CorrelatedNoiseSampler().sample(
+        torch.zeros(HORIZON, action_dim), SIGMA[env_name], n, torch.Generator().manual_seed(0)
+    ).float()
+
+
+def predict_from_start(inst, plans: torch.Tensor) -> torch.Tensor:
+    """The simulator oracle's ``(N, HORIZON, 3, 64, 64)`` frames of ``plans`` from the
+    instance's initial state (after the zero context action, as at a trial's first plan)."""
+    n, _, action_dim = plans.shape
+    model = SimulatorModel(action_dim)
+    try:
+        model.set_simulator_state(inst.env_meta, inst.init_state)
+        actions = torch.cat([torch.zeros(n, 1, action_dim), plans], dim=1)
+        with torch.no_grad():
+            return model.predict(torch.zeros(n, 2, 3, 64, 64), actions)
+    finally:
+        model.close()
+
+
 def rank_of_last(scores: np.ndarray) -> int:
     """1-based rank of ``scores[-1]`` among all (higher is better; ties count against it)."""
     return int((scores[:-1] >= scores[-1]).sum()) + 1
@@ -86,22 +107,11 @@ def main() -> None:
         for index in args.instances:
             inst = suite.get(task, index)
             action_dim = inst.actions.shape[1]
-            candidates = CorrelatedNoiseSampler().sample(
-                torch.zeros(HORIZON, action_dim),
-                SIGMA[env_name],
-                args.num_samples,
-                torch.Generator().manual_seed(0),
-            )
-            plans = torch.cat([candidates.float(), scripted_plan(inst.actions, HORIZON)[None]])
+            candidates = first_step_candidates(env_name, action_dim, args.num_samples)
+            plans = torch.cat([candidates, scripted_plan(inst.actions, HORIZON)[None]])
             n = len(plans)
-            model = SimulatorModel(action_dim)
             start = time.perf_counter()
-            model.set_simulator_state(inst.env_meta, inst.init_state)
-            context = torch.zeros(n, 2, 3, 64, 64)
-            actions = torch.cat([torch.zeros(n, 1, action_dim), plans], dim=1)
-            with torch.no_grad():
-                frames = model.predict(context, actions)
-            model.close()
+            frames = predict_from_start(inst, plans)
             seconds = time.perf_counter() - start
             goal = frames_to_tensor(inst.goal_image, torch.device("cpu"))
             for directory, registry in registries.items():

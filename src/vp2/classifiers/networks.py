@@ -67,6 +67,11 @@ class PaperClassifier(nn.Module):
         return self.head(self.last(x)).squeeze(-1)  # (M,)
 
 
+#: Channels of the four convolutions and the hidden units of ours at width 1.
+OURS_WIDTHS = (16, 32, 64, 32)
+OURS_HIDDEN = 32
+
+
 class SuccessClassifier(nn.Module):
     """Our success classifier: four stride-2 3×3 convolutions and a small dense head.
 
@@ -82,8 +87,8 @@ class SuccessClassifier(nn.Module):
     def __init__(
         self,
         image_size: int = IMAGE_SIZE,
-        widths: Sequence[int] = (16, 32, 64, 32),
-        hidden: int = 32,
+        widths: Sequence[int] = OURS_WIDTHS,
+        hidden: int = OURS_HIDDEN,
     ) -> None:
         super().__init__()
         if image_size % 2 ** len(widths):
@@ -126,7 +131,9 @@ def build_classifier(arch: str, image_size: int = IMAGE_SIZE, width: int = 1) ->
             raise ValueError(f"width applies to the 'ours' network only, not {arch!r}")
         return _NETWORKS[arch](image_size=image_size)
     return SuccessClassifier(
-        image_size=image_size, widths=tuple(w * width for w in (16, 32, 64, 32)), hidden=32 * width
+        image_size=image_size,
+        widths=tuple(w * width for w in OURS_WIDTHS),
+        hidden=OURS_HIDDEN * width,
     )
 
 
