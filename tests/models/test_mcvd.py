@@ -1,11 +1,13 @@
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 import torch
 
 from tests.models.synthetic import moving_square_batch
 from vp2.models import MCVD, build_model
-from vp2.models.mcvd import AttnBlock, ResBlock
+from vp2.models.mcvd import AttnBlock, ResBlock, SPADENorm, UNet
 
 SMALL = {"action_dim": 4, "image_size": 32}
 
@@ -147,6 +149,37 @@ def test_sampling_steps_set_the_denoiser_calls(steps, monkeypatch):
     model.predict(torch.rand(3, 2, 3, 32, 32), torch.zeros(3, 11, 4))
     assert len(model.sampling_timesteps()) == steps
     assert batches == [3] * (2 * steps)
+
+
+def test_conditioning_is_computed_once_per_window_with_the_same_samples(monkeypatch):
+    """The SPADE modulation depends on the conditioning map alone, so sampling computes it
+    once per window and norm, and the frames are bit-identical to recomputing it per step."""
+    model = build_model("mcvd", "tiny", sampling_steps=4, **SMALL)
+    # Perturbed weights, so that the modulation visibly shapes the output.
+    with torch.no_grad():
+        for name in model._ema_names.values():
+            buf = getattr(model, name)
+            buf.add_(0.05 * torch.randn(buf.shape, generator=torch.Generator().manual_seed(1)))
+    context, actions = torch.rand(3, 2, 3, 32, 32), torch.rand(3, 11, 4) * 2 - 1
+    norms = [m for m in model.unet.modules() if isinstance(m, SPADENorm)]
+    calls = []
+    modulation = SPADENorm.modulation
+
+    def counting(self, cond, size):
+        calls.append(id(self))
+        return modulation(self, cond, size)
+
+    monkeypatch.setattr(SPADENorm, "modulation", counting)
+    reused = model.predict(context, actions, generator=torch.Generator().manual_seed(0))
+    assert len(calls) == 2 * len(norms)  # 2 windows, once per norm (not 4 steps × 2 windows)
+    assert all(m.reuse is None for m in norms)  # left off after sampling
+
+    calls.clear()
+    monkeypatch.setattr(UNet, "reusing_conditioning", lambda self: contextlib.nullcontext())
+    recomputed = model.predict(context, actions, generator=torch.Generator().manual_seed(0))
+    assert len(calls) == 2 * 4 * len(norms)
+    assert torch.equal(reused, recomputed)
+    assert reused.std() > 0.01
 
 
 def _overfit(model: MCVD, steps: int, lr: float) -> float:

@@ -29,9 +29,11 @@ checkpoints (and resumed runs) carry it. The decay is warmed up as ``min(decay, 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
+from collections.abc import Iterator
 from typing import ClassVar
 
 import torch
@@ -142,12 +144,26 @@ class SPADENorm(nn.Module):
         self.shared = nn.Sequential(nn.Conv2d(cond_channels, hidden, 3, 1, 1), nn.SiLU())
         self.gamma = nn.Conv2d(hidden, channels, 3, 1, 1)
         self.beta = nn.Conv2d(hidden, channels, 3, 1, 1)
+        #: ``(cond, scale, shift)`` of the last call while :meth:`UNet.reusing_conditioning`
+        #: is active, else ``None`` (every call computes its modulation).
+        self.reuse: list[tuple[Tensor, Tensor, Tensor]] | None = None
+
+    def modulation(self, cond: Tensor, size: torch.Size) -> tuple[Tensor, Tensor]:
+        """``(1 + γ(c), β(c))`` at the spatial ``size``: a function of ``cond`` alone."""
+        if cond.shape[-2:] != size:
+            cond = F.interpolate(cond, size=size, mode="nearest")
+        h = self.shared(cond)
+        return 1 + self.gamma(h), self.beta(h)
 
     def forward(self, x: Tensor, cond: Tensor) -> Tensor:
-        if cond.shape[-1] != x.shape[-1]:
-            cond = F.interpolate(cond, size=x.shape[-2:], mode="nearest")
-        h = self.shared(cond)
-        return self.norm(x) * (1 + self.gamma(h)) + self.beta(h)
+        if self.reuse is None:
+            scale, shift = self.modulation(cond, x.shape[-2:])
+        elif self.reuse and self.reuse[0][0] is cond:
+            _, scale, shift = self.reuse[0]
+        else:
+            scale, shift = self.modulation(cond, x.shape[-2:])
+            self.reuse[:] = [(cond, scale, shift)]
+        return self.norm(x) * scale + shift
 
 
 class ResBlock(nn.Module):
@@ -228,6 +244,22 @@ class UNet(nn.Module):
                 side *= 2
         self.out_norm = group_norm(cur)
         self.out = nn.Conv2d(cur, channels, 3, 1, 1)
+
+    @contextlib.contextmanager
+    def reusing_conditioning(self) -> Iterator[None]:
+        """Within it, each SPADE norm computes its modulation once per conditioning tensor
+        (the same object) and reuses it: the denoising steps of a window share ``cond``, so
+        its convolutions (most of the U-Net's at the small presets) run once per window
+        instead of once per step. Same values, more memory (a scale and shift per norm);
+        the weights must not change inside it."""
+        norms = [m for m in self.modules() if isinstance(m, SPADENorm)]
+        for m in norms:
+            m.reuse = []
+        try:
+            yield
+        finally:
+            for m in norms:
+                m.reuse = None
 
     def forward(self, x: Tensor, t: Tensor, cond: Tensor) -> Tensor:
         """``x (B, 3W, H, W)``, ``t (B,)`` timesteps, ``cond (B, Cc, H, W)`` -> ``ε̂``."""
@@ -379,6 +411,14 @@ class MCVD(VideoPredictor):
         cond = self._condition(context, actions)
         x = sample_normal((b, 3 * cfg.window, side, side), context, generator)
         steps = self.sampling_timesteps()
+        with self.unet.reusing_conditioning():
+            return self._denoise(x, cond, steps, generator).unflatten(1, (cfg.window, 3))
+
+    def _denoise(
+        self, x: Tensor, cond: Tensor, steps: list[int], generator: torch.Generator
+    ) -> Tensor:
+        """The strided ancestral chain from ``x`` at ``steps[0]`` down to ``x_0``."""
+        b = x.shape[0]
         for i, t in enumerate(steps):
             ab_t = self.alphas_cumprod[t].to(x.dtype)
             ab_prev = self.alphas_cumprod[steps[i + 1]].to(x.dtype) if i + 1 < len(steps) else None
@@ -392,7 +432,7 @@ class MCVD(VideoPredictor):
             mean = (ab_prev.sqrt() * beta * x0 + (1 - beta).sqrt() * (1 - ab_prev) * x) / (1 - ab_t)
             var = beta * (1 - ab_prev) / (1 - ab_t)
             x = mean + var.sqrt() * sample_normal(tuple(x.shape), x, generator)
-        return x.unflatten(1, (cfg.window, 3))
+        return x
 
     def _predict(
         self, context_frames: Tensor, actions: Tensor, generator: torch.Generator
