@@ -76,7 +76,7 @@ from action_conditioning import ratio_statistics
 from model_comparison_results import results_markdown
 from vp2.benchmark.config import RunConfig
 from vp2.benchmark.model_spec import resolve_model
-from vp2.benchmark.runner import run_benchmark
+from vp2.benchmark.runner import RunResult, run_benchmark
 from vp2.data.loader import ClipDataset
 from vp2.data.storage import load_manifest
 from vp2.metrics.evaluate import evaluate_model, write_metrics
@@ -454,7 +454,7 @@ def run_config(s: Settings, name: str, spec: str | None) -> RunConfig:
     return RunConfig(**baseline, **common)
 
 
-def runs_stage(s: Settings, name: str, spec: str | None, stage_log: StageLog) -> Path:
+def runs_stage(s: Settings, name: str, spec: str | None, stage_log: StageLog) -> RunResult:
     config = run_config(s, name, spec)
     result = run_benchmark(config, after_run=write_run_report)
     status = "ran" if result.num_run else "done earlier"
@@ -467,7 +467,7 @@ def runs_stage(s: Settings, name: str, spec: str | None, stage_log: StageLog) ->
         trials=len(result.records),
         errors=result.num_errors,
     )
-    return result.run_dir
+    return result
 
 
 # --------------------------------------------------------------------------- e./f. study, report
@@ -536,27 +536,47 @@ def run_comparison(s: Settings) -> Path:
     metrics_files = {
         name: metrics_stage(s, name, spec, stage_log) for name, spec in predictors.items()
     }
-    run_dirs = {name: runs_stage(s, name, spec, stage_log) for name, spec in specs.items()}
-    for name in BASELINES:
-        run_dirs[name] = runs_stage(s, name, None, stage_log)
+    # The baselines first (minutes), then the families in the order given: the page is
+    # rewritten after every run that planned trials, so a build cut short (a session's end)
+    # still publishes what it finished, and says what is pending.
+    order = [*BASELINES, *s.families]
+    run_dirs: dict[str, Path] = {}
+    for name in order:
+        result = runs_stage(s, name, specs.get(name), stage_log)
+        run_dirs[name] = result.run_dir
+        pending = [n for n in order if n not in run_dirs]
+        if pending and result.num_run:
+            publish(s, run_dirs, metrics_files, stage_log, pending)
+    return publish(s, run_dirs, metrics_files, stage_log, [])
 
+
+def publish(
+    s: Settings,
+    run_dirs: dict[str, Path],
+    metrics_files: dict[str, Path],
+    stage_log: StageLog,
+    pending: list[str],
+) -> Path:
+    """The study, the report (and its screenshot) and ``results.md`` of the runs finished so
+    far (``run_dirs``); ``pending`` names the runs not yet finished. Returns ``results.md``."""
     study_dir = s.out / "study"
-    entries = [(name, run_dirs[name], metrics_files[name]) for name in metrics_files]
+    entries = [(n, run_dirs[n], path) for n, path in metrics_files.items() if n in run_dirs]
     write_study(study(entries), study_dir)
     stage_log.add("study", "all", "written", entries=len(entries))
+    labels = [n for n in [*s.families, *BASELINES] if n in run_dirs]  # the table's order
     report = write_report(
-        list(run_dirs.values()),
+        [run_dirs[n] for n in labels],
         s.out / "report.html",
-        metrics={str(run_dirs[name]): path for name, path in metrics_files.items()},
-        labels=list(run_dirs),
-        title="vp2 model comparison: " + ", ".join(run_dirs),
+        metrics={str(run_dirs[n]): path for n, path in metrics_files.items() if n in run_dirs},
+        labels=labels,
+        title="vp2 model comparison: " + ", ".join(labels),
     )
     shot_note = screenshot(report, s.out / "report.png")
     stage_log.add("report", "all", "written", screenshot=shot_note or "report.png")
     path = s.out / "results.md"
     with atomic_path(path) as tmp:
-        tmp.write_text(results_markdown(s.out, shot_note))
-    stage_log.add("results", "all", "written")
+        tmp.write_text(results_markdown(s.out, shot_note, pending))
+    stage_log.add("results", "all", "written", pending=pending)
     return path
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import datetime
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,9 +44,18 @@ def _success(mean: float | None, low: float | None, high: float | None) -> str:
     return f"{_pct(mean)} [{_pct(low)}, {_pct(high)}]"
 
 
-def results_markdown(out: Path, screenshot_note: str | None) -> str:
+def _trials_on_disk(run_dir: Path) -> int:
+    path = run_dir / "trials.jsonl"
+    return len(path.read_text().splitlines()) if path.is_file() else 0
+
+
+def results_markdown(
+    out: Path, screenshot_note: str | None, pending: Sequence[str] = ()
+) -> str:
     """The page: budget, success per task, normalised means, action conditioning, metrics,
-    the study and the report's screenshot (``screenshot_note``: why there is none)."""
+    the study and the report's screenshot (``screenshot_note``: why there is none).
+    ``pending``: runs not finished yet (the page then says so at the top, and their columns
+    count the trials on disk)."""
     s = json.loads((out / "comparison.json").read_text())
     lines = [
         "# Model comparison: five families at one training budget, judged by control",
@@ -62,6 +72,15 @@ def results_markdown(out: Path, screenshot_note: str | None) -> str:
         "```",
         "",
     ]
+    if pending:
+        counts = ", ".join(
+            f"{name} ({_trials_on_disk(out / 'runs' / name)} trials on disk)" for name in pending
+        )
+        lines += [
+            f"**Incomplete**: the runs of {counts} are not finished; their columns, the study and "
+            "the report leave them out until they are. The command above resumes them.",
+            "",
+        ]
     lines += budget_lines(out, s)
     lines += success_lines(out, s)
     lines += conditioning_lines(out, s)
@@ -140,6 +159,9 @@ def success_lines(out: Path, s: dict[str, Any]) -> list[str]:
         for name in names:
             rows = (summaries[name] or {}).get("tasks", [])
             row = next((r for r in rows if r["task"] == task), None)
+            if summaries[name] is None:
+                cells.append("pending")
+                continue
             cells.append(
                 "–" if row is None
                 else f"{_success(row['mean'], row['min'], row['max'])} ({row['num_trials']})"

@@ -108,6 +108,13 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
         "repeat_last_frame",
     ]
     assert (out / "report.html").stat().st_size > 10_000
+    # The baselines ran first; the page was published after each run with what was pending.
+    (first,) = _log(out)
+    assert [x["name"] for x in first if x["stage"] == "run"] == [*RUNS[2:], *FAMILIES]
+    assert [x["pending"] for x in first if x["stage"] == "results"] == [
+        ["random", *FAMILIES], list(FAMILIES), [FAMILIES[1]], []
+    ]
+    assert "**Incomplete**" not in results
     if "![vp2 report](report.png)" in results:
         assert (out / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     else:
