@@ -25,11 +25,14 @@ d. **runs**: ``vp2 run`` of each family, repeat-last-frame and random actions on
 e. **study** (``vp2 study``: metrics versus control, rank correlations) and **report**
    (``vp2 report``), normalised by the shipped oracle.
 f. **screenshot** of the report's top, if Chromium is on PATH.
-g. **results.md** (``model_comparison_results.py``): the budget per family (minutes, steps
+g. **results.md** (``model_comparison_results.py``; ``--docs PATH`` also writes it there, e.g.
+   ``docs/results.md``, with the screenshot beside it): the budget per family (minutes, steps
    reached, device, threads), success per task (mean with [min, max] over seeds) beside the
    shipped oracle and the two baselines, the oracle-normalised means, the action-conditioning
    ratios, the metrics, the study's correlations, the screenshot and the command. Every number
-   in it is read from the files the stages wrote.
+   in it is read from the files the stages wrote. Study, report and page are rewritten after
+   every run that planned trials (the baselines run first), so a build cut short publishes
+   what it finished and names the runs still pending.
 
 Layout of ``--out``::
 
@@ -142,6 +145,7 @@ class Settings:
 
     out: Path
     data: Path
+    docs: Path | None  # where the page is also published (None: only under out)
     budget_minutes: float
     families: tuple[str, ...]
     tasks: tuple[str, ...]
@@ -576,6 +580,13 @@ def publish(
     path = s.out / "results.md"
     with atomic_path(path) as tmp:
         tmp.write_text(results_markdown(s.out, shot_note, pending))
+    if s.docs is not None:  # the published copy, its screenshot beside it
+        image = s.docs.with_name(s.docs.stem + "-report.png")
+        if shot_note is None:
+            with atomic_path(image) as tmp:
+                tmp.write_bytes((s.out / "report.png").read_bytes())
+        with atomic_path(s.docs) as tmp:
+            tmp.write_text(results_markdown(s.out, shot_note, pending, image.name))
     stage_log.add("results", "all", "written", pending=pending)
     return path
 
@@ -602,6 +613,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     # `None` defaults are filled by settings_from_args, from FULL (or SMOKE with --smoke).
     p.add_argument("--out", type=Path, default=Path("outputs/comparison"))
+    p.add_argument(
+        "--docs",
+        type=Path,
+        help="also write the page here (e.g. docs/results.md), its screenshot beside it",
+    )
     p.add_argument("--data", type=Path, default=Path("data/robodesk-300x-64px"))
     p.add_argument("--budget-minutes", type=float, help="training minutes per family (default 60)")
     p.add_argument("--families", nargs="+", choices=list(FAMILIES), default=list(FAMILIES))
@@ -648,6 +664,7 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
     return Settings(
         out=args.out,
         data=args.data,
+        docs=args.docs,
         budget_minutes=float(value["budget_minutes"]),
         families=tuple(args.families),
         tasks=tuple(value["tasks"]),

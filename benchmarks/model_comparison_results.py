@@ -50,12 +50,15 @@ def _trials_on_disk(run_dir: Path) -> int:
 
 
 def results_markdown(
-    out: Path, screenshot_note: str | None, pending: Sequence[str] = ()
+    out: Path,
+    screenshot_note: str | None,
+    pending: Sequence[str] = (),
+    image: str = "report.png",
 ) -> str:
     """The page: budget, success per task, normalised means, action conditioning, metrics,
-    the study and the report's screenshot (``screenshot_note``: why there is none).
-    ``pending``: runs not finished yet (the page then says so at the top, and their columns
-    count the trials on disk)."""
+    the study and the report's screenshot (``screenshot_note``: why there is none; ``image``:
+    its link from where the page is written). ``pending``: runs not finished yet (the page
+    then says so at the top, and their columns say "pending")."""
     s = json.loads((out / "comparison.json").read_text())
     lines = [
         "# Model comparison: five families at one training budget, judged by control",
@@ -91,7 +94,7 @@ def results_markdown(
         lines += [
             "`report.html` is the `vp2 report` page of every run above; its top:",
             "",
-            "![vp2 report](report.png)",
+            f"![vp2 report]({image})",
         ]
     else:
         lines.append(

@@ -36,7 +36,8 @@ TINY = CollectionConfig(
 
 def _compare(data: Path, out: Path) -> None:
     command = [sys.executable, str(SCRIPT), "--smoke", "--data", str(data), "--out", str(out),
-               "--families", *FAMILIES, "--threads", "1"]  # fmt: skip
+               "--families", *FAMILIES, "--threads", "1",
+               "--docs", str(out.parent / "docs" / "results.md")]  # fmt: skip
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     proc = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
@@ -115,6 +116,15 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
         ["random", *FAMILIES], list(FAMILIES), [FAMILIES[1]], []
     ]
     assert "**Incomplete**" not in results
+    # The published copy: the same page, its screenshot beside it.
+    published = (tmp_path / "docs" / "results.md").read_text()
+    if "![vp2 report](report.png)" in results:
+        assert published.replace("results-report.png", "report.png") == results
+        assert (tmp_path / "docs" / "results-report.png").read_bytes() == (
+            out / "report.png"
+        ).read_bytes()
+    else:
+        assert published == results
     if "![vp2 report](report.png)" in results:
         assert (out / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     else:
