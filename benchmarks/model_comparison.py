@@ -19,6 +19,9 @@ b. **conditioning**: each family's prediction error on held-out clips under the 
 c. **metrics**: ``vp2 metrics`` of each family and of repeat-last-frame on held-out clips
    (MSE, PSNR, SSIM; LPIPS and FVD where their weight files are on the machine, else skipped
    with a note).
+``--extra LABEL=MODEL`` adds a model that is not trained here (a checkpoint from elsewhere, any
+``vp2 run --model`` spec) to stages b.–g., labelled as outside the budget.
+
 d. **runs**: ``vp2 run`` of each family, repeat-last-frame and random actions on the RoboDesk
    tasks (the first ``--num-instances`` of each, ``--seeds``, ``--num-samples`` planner
    samples), resumed trial by trial.
@@ -148,6 +151,7 @@ class Settings:
     docs: Path | None  # where the page is also published (None: only under out)
     budget_minutes: float
     families: tuple[str, ...]
+    extras: tuple[tuple[str, str], ...]  # (label, model spec): evaluated, not trained here
     tasks: tuple[str, ...]
     num_instances: int
     seeds: tuple[int, ...]
@@ -516,6 +520,7 @@ def run_comparison(s: Settings) -> Path:
     """Runs (or resumes) every stage; returns the path of ``results.md``."""
     s.out.mkdir(parents=True, exist_ok=True)
     stage_log = StageLog(s.out)
+    extras = dict(s.extras)
     # What results.md reads besides the stages' files: the settings, and what was compared.
     record = {
         **dataclasses.asdict(s),
@@ -526,24 +531,26 @@ def run_comparison(s: Settings) -> Path:
             ]
             for f in s.families
         },
-        "run_names": [*s.families, *BASELINES],
-        "metrics_names": [*s.families, "repeat_last_frame"],
+        "extra_models": dict(s.extras),
+        "run_names": [*s.families, *extras, *BASELINES],
+        "metrics_names": [*s.families, *extras, "repeat_last_frame"],
         "vp2_version": vp2.__version__,
         "torch_version": torch.__version__,
     }
     write_json_atomic(s.out / "comparison.json", json_safe(record))
     train_records = {f: train_family(s, f, stage_log) for f in s.families}
     specs = {f: model_spec(f, records) for f, records in train_records.items()}
+    specs.update(extras)
     for family, spec in specs.items():
         conditioning_stage(s, family, spec, stage_log)
     predictors = {**specs, "repeat_last_frame": "repeat_last_frame"}
     metrics_files = {
         name: metrics_stage(s, name, spec, stage_log) for name, spec in predictors.items()
     }
-    # The baselines first (minutes), then the families in the order given: the page is
-    # rewritten after every run that planned trials, so a build cut short (a session's end)
-    # still publishes what it finished, and says what is pending.
-    order = [*BASELINES, *s.families]
+    # The baselines first (minutes), then the extra models, then the families in the order
+    # given: the page is rewritten after every run that planned trials, so a build cut short
+    # (a session's end) still publishes what it finished, and says what is pending.
+    order = [*BASELINES, *extras, *s.families]
     run_dirs: dict[str, Path] = {}
     for name in order:
         result = runs_stage(s, name, specs.get(name), stage_log)
@@ -567,7 +574,7 @@ def publish(
     entries = [(n, run_dirs[n], path) for n, path in metrics_files.items() if n in run_dirs]
     write_study(study(entries), study_dir)
     stage_log.add("study", "all", "written", entries=len(entries))
-    labels = [n for n in [*s.families, *BASELINES] if n in run_dirs]  # the table's order
+    labels = [n for n in [*s.families, *dict(s.extras), *BASELINES] if n in run_dirs]
     report = write_report(
         [run_dirs[n] for n in labels],
         s.out / "report.html",
@@ -645,8 +652,36 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         action="store_true",
         help="train nothing: evaluate the newest checkpoint of each training run",
     )
+    p.add_argument(
+        "--extra",
+        action="append",
+        default=[],
+        metavar="LABEL=MODEL",
+        help="also evaluate this model (any --model spec of vp2 run, e.g. a checkpoint trained "
+        "elsewhere) beside the families, outside the training budget; repeatable",
+    )
     p.add_argument("--smoke", action="store_true", help="a tiny configuration (tests)")
     return p.parse_args(argv)
+
+
+def parse_extras(items: Sequence[str], families: Sequence[str]) -> tuple[tuple[str, str], ...]:
+    """``LABEL=MODEL`` items -> ``((label, model), ...)``.
+
+    Raises:
+        ValueError: an item without ``=``, an empty side, or a label that is already taken.
+    """
+    taken = {*families, *BASELINES, "repeat_last_frame"}
+    extras: list[tuple[str, str]] = []
+    for item in items:
+        label, sep, spec = item.partition("=")
+        label, spec = label.strip(), spec.strip()
+        if not sep or not label or not spec:
+            raise ValueError(f"--extra {item!r}: expected LABEL=MODEL, e.g. shipped=svg_prime:model.pt")
+        if label in taken:
+            raise ValueError(f"--extra {item!r}: the label {label!r} is already used; pick another")
+        taken.add(label)
+        extras.append((label, spec))
+    return tuple(extras)
 
 
 def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Settings:
@@ -667,6 +702,7 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
         docs=args.docs,
         budget_minutes=float(value["budget_minutes"]),
         families=tuple(args.families),
+        extras=parse_extras(args.extra, args.families),
         tasks=tuple(value["tasks"]),
         num_instances=value["num_instances"],
         seeds=tuple(value["seeds"]),
@@ -695,7 +731,10 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
 def main(argv: Sequence[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    settings = settings_from_args(parse_args(argv), argv)
+    try:
+        settings = settings_from_args(parse_args(argv), argv)
+    except ValueError as exc:
+        sys.exit(f"model_comparison.py: {exc}")
     print(f"model comparison -> {settings.out} ({settings.device}, {settings.threads} threads)")
     print(f"wrote {run_comparison(settings)}")
 

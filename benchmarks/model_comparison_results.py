@@ -131,6 +131,8 @@ def budget_lines(out: Path, s: dict[str, Any]) -> list[str]:
                 f"| {family} | {name} | {params} | {r['budget_minutes']:.3g} | "
                 f"{r['train_minutes']:.3g} | {steps} | {r['device']} | {r['threads'] or '–'} |"
             )
+    for label, spec in s.get("extra_models", {}).items():
+        lines.append(f"| {label} | `{spec}` | – | not trained here | – | – | – | – |")
     return [*lines, ""]
 
 
@@ -203,7 +205,7 @@ def conditioning_lines(out: Path, s: dict[str, Any]) -> list[str]:
         "| family | ratio, all pixels [95% CI] | ratio, changing pixels [95% CI] | wins | p |",
         "|---|---|---|---|---|",
     ]
-    for family in s["families"]:
+    for family in [*s["families"], *s.get("extra_models", {})]:
         r = _read(out / "conditioning" / f"{family}.json")
         if r is None:
             lines.append(f"| {family} | – | – | – | – |")

@@ -19,7 +19,9 @@ from vp2.data.collect import CollectionConfig, collect
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "benchmarks" / "model_comparison.py"
 FAMILIES = ("fitvid", "struct_vrnn")
-RUNS = (*FAMILIES, "repeat_last_frame", "random")
+# A model evaluated beside the families, not trained by the comparison: the shipped SVG′.
+EXTRA = ("shipped", "svg_prime:src/vp2/assets/models/svg_prime_tiny_robodesk.pt")
+RUNS = (*FAMILIES, EXTRA[0], "repeat_last_frame", "random")
 TASK = "robodesk/push_red"  # the task --smoke runs
 
 # 3 trajectories of 15 actions at 64x64 (the benchmark's size): 10 train and 5 valid clips.
@@ -36,7 +38,7 @@ TINY = CollectionConfig(
 
 def _compare(data: Path, out: Path) -> None:
     command = [sys.executable, str(SCRIPT), "--smoke", "--data", str(data), "--out", str(out),
-               "--families", *FAMILIES, "--threads", "1",
+               "--families", *FAMILIES, "--threads", "1", "--extra", "=".join(EXTRA),
                "--docs", str(out.parent / "docs" / "results.md")]  # fmt: skip
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     proc = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
@@ -84,7 +86,8 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
         assert records[0]["error"] is None
     # The budget stopped each training run, which wrote its final checkpoint.
     budget = _table(results, "| family |")
-    assert [row[0] for row in budget[2:]] == list(FAMILIES)
+    assert [row[0] for row in budget[2:]] == [*FAMILIES, EXTRA[0]]
+    assert budget[-1][1:4] == [f"`{EXTRA[1]}`", "–", "not trained here"]
     for family in FAMILIES:
         record = json.loads((out / "train" / f"{family}.json").read_text())
         assert record["budget_reached"] and record["step"] >= 1
@@ -92,7 +95,7 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
         assert Path(record["checkpoint"]).is_file()
         assert f"| {family} | {family} (" in results
     # Action conditioning: finite ratios inside their bootstrap intervals, in the table too.
-    for family in FAMILIES:
+    for family in (*FAMILIES, EXTRA[0]):
         r = json.loads((out / "conditioning" / f"{family}.json").read_text())
         for key in ("all_pixels", "moving_pixels"):
             low, high = r[key]["ci"]
@@ -100,20 +103,21 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
         assert r["all_pixels"]["n"] == 5  # every held-out clip of the tiny dataset
         assert f"| {family} | {r['all_pixels']['ratio']:.3f} [" in results
     # Metrics of every predictor; the study ranked them; the report page exists.
-    for name in (*FAMILIES, "repeat_last_frame"):
+    for name in (*FAMILIES, EXTRA[0], "repeat_last_frame"):
         metrics = json.loads((out / "metrics" / name / "metrics.json").read_text())
         assert metrics["num_clips"] == 5 and 0 < metrics["metrics"]["mse"] < 1
         assert f"| {name} | {metrics['metrics']['mse']:.5f} |" in results
     assert json.loads((out / "study" / "study.json").read_text())["labels"] == [
         *FAMILIES,
+        EXTRA[0],
         "repeat_last_frame",
     ]
     assert (out / "report.html").stat().st_size > 10_000
     # The baselines ran first; the page was published after each run with what was pending.
     (first,) = _log(out)
-    assert [x["name"] for x in first if x["stage"] == "run"] == [*RUNS[2:], *FAMILIES]
+    assert [x["name"] for x in first if x["stage"] == "run"] == [*RUNS[3:], EXTRA[0], *FAMILIES]
     assert [x["pending"] for x in first if x["stage"] == "results"] == [
-        ["random", *FAMILIES], list(FAMILIES), [FAMILIES[1]], []
+        ["random", EXTRA[0], *FAMILIES], [EXTRA[0], *FAMILIES], list(FAMILIES), [FAMILIES[1]], []
     ]
     assert "**Incomplete**" not in results
     # The published copy: the same page, its screenshot beside it.
@@ -142,9 +146,11 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
     assert {status[("train", f)] for f in FAMILIES} == {"done earlier"}
     assert status[("conditioning", "fitvid")] == "ran"
     assert status[("conditioning", "struct_vrnn")] == "done earlier"
-    assert {status[("metrics", n)] for n in (*FAMILIES, "repeat_last_frame")} == {"done earlier"}
-    assert [x["num_run"] for x in second if x["stage"] == "run"] == [0, 0, 0, 0]
-    assert [x["num_run"] for x in first if x["stage"] == "run"] == [1, 1, 1, 1]
+    assert {status[("metrics", n)] for n in (*FAMILIES, EXTRA[0], "repeat_last_frame")} == {
+        "done earlier"
+    }
+    assert [x["num_run"] for x in second if x["stage"] == "run"] == [0] * len(RUNS)
+    assert [x["num_run"] for x in first if x["stage"] == "run"] == [1] * len(RUNS)
     for family, record in checkpoints.items():
         assert Path(record["checkpoint"]).stat().st_mtime_ns == mtimes[family]
     for name in RUNS:
@@ -152,3 +158,21 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
     assert (out / "results.md").read_text().split("## Training budget")[1] == results.split(
         "## Training budget"
     )[1]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        ("svg_prime:model.pt", "expected LABEL=MODEL"),
+        ("=svg_prime:model.pt", "expected LABEL=MODEL"),
+        ("random=svg_prime:model.pt", "the label 'random' is already used"),
+        ("fitvid=svg_prime:model.pt", "the label 'fitvid' is already used"),
+    ],
+)
+def test_a_malformed_extra_model_stops_before_anything_runs(tmp_path, extra, message):
+    out = tmp_path / "comparison"
+    command = [sys.executable, str(SCRIPT), "--smoke", "--out", str(out), "--extra", extra]
+    proc = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert not out.exists()
