@@ -149,6 +149,8 @@ class Settings:
     out: Path
     data: Path
     docs: Path | None  # where the page is also published (None: only under out)
+    notes: Path | None  # Markdown put into the page as its "Reading" section
+    publish_only: bool  # rebuild study, report and page from what is on disk; run nothing
     budget_minutes: float
     families: tuple[str, ...]
     extras: tuple[tuple[str, str], ...]  # (label, model spec): evaluated, not trained here
@@ -518,6 +520,8 @@ def screenshot(html: Path, png: Path, width: int = 1200) -> str | None:
 
 def run_comparison(s: Settings) -> Path:
     """Runs (or resumes) every stage; returns the path of ``results.md``."""
+    if s.publish_only:
+        return publish_found(s)
     s.out.mkdir(parents=True, exist_ok=True)
     stage_log = StageLog(s.out)
     extras = dict(s.extras)
@@ -561,6 +565,34 @@ def run_comparison(s: Settings) -> Path:
     return publish(s, run_dirs, metrics_files, stage_log, [])
 
 
+def publish_found(s: Settings) -> Path:
+    """``--publish-only``: the study, report and page of the runs finished under ``s.out``
+    (those with a ``summary.json``), for the families and extra models the build recorded in
+    ``comparison.json``; nothing is trained, measured or planned, and the recorded command
+    stays the build's."""
+    recorded = s.out / "comparison.json"
+    if not recorded.is_file():
+        raise ValueError(f"--publish-only: {recorded} does not exist; run the comparison first")
+    build = json.loads(recorded.read_text())
+    s = dataclasses.replace(
+        s,
+        families=tuple(build["families"]),
+        extras=tuple((k, v) for k, v in build.get("extra_models", {}).items()),
+    )
+    order = [*BASELINES, *dict(s.extras), *s.families]
+    run_dirs = {n: s.out / "runs" / n for n in order}
+    run_dirs = {n: d for n, d in run_dirs.items() if (d / "summary.json").is_file()}
+    if not run_dirs:
+        raise ValueError(f"--publish-only: no finished run under {s.out / 'runs'}")
+    metrics_files = {
+        n: s.out / "metrics" / n / "metrics.json"
+        for n in [*s.families, *dict(s.extras), "repeat_last_frame"]
+    }
+    metrics_files = {n: p for n, p in metrics_files.items() if p.is_file()}
+    pending = [n for n in order if n not in run_dirs]
+    return publish(s, run_dirs, metrics_files, StageLog(s.out), pending)
+
+
 def publish(
     s: Settings,
     run_dirs: dict[str, Path],
@@ -585,15 +617,16 @@ def publish(
     shot_note = screenshot(report, s.out / "report.png")
     stage_log.add("report", "all", "written", screenshot=shot_note or "report.png")
     path = s.out / "results.md"
+    notes = None if s.notes is None else s.notes.read_text()
     with atomic_path(path) as tmp:
-        tmp.write_text(results_markdown(s.out, shot_note, pending))
+        tmp.write_text(results_markdown(s.out, shot_note, pending, notes=notes))
     if s.docs is not None:  # the published copy, its screenshot beside it
         image = s.docs.with_name(s.docs.stem + "-report.png")
         if shot_note is None:
             with atomic_path(image) as tmp:
                 tmp.write_bytes((s.out / "report.png").read_bytes())
         with atomic_path(s.docs) as tmp:
-            tmp.write_text(results_markdown(s.out, shot_note, pending, image.name))
+            tmp.write_text(results_markdown(s.out, shot_note, pending, image.name, notes))
     stage_log.add("results", "all", "written", pending=pending)
     return path
 
@@ -653,6 +686,18 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="train nothing: evaluate the newest checkpoint of each training run",
     )
     p.add_argument(
+        "--notes",
+        type=Path,
+        help="a Markdown file put into the page as its 'Reading' section (e.g. "
+        "docs/results-notes.md: what the numbers say, kept apart from the generated page)",
+    )
+    p.add_argument(
+        "--publish-only",
+        action="store_true",
+        help="train, measure and plan nothing: rebuild the study, report and page from the "
+        "finished runs under --out (e.g. after editing --notes)",
+    )
+    p.add_argument(
         "--extra",
         action="append",
         default=[],
@@ -692,6 +737,8 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
              for k, v in defaults.items()}  # fmt: skip
     if args.no_fvd:
         value["fvd"] = False
+    if args.notes is not None and not args.notes.is_file():
+        raise ValueError(f"--notes {args.notes}: no such file")
     if args.threads is not None:
         torch.set_num_threads(args.threads)
     device = str(resolve_device(None if args.device == "auto" else args.device))
@@ -700,6 +747,8 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
         out=args.out,
         data=args.data,
         docs=args.docs,
+        notes=args.notes,
+        publish_only=args.publish_only,
         budget_minutes=float(value["budget_minutes"]),
         families=tuple(args.families),
         extras=parse_extras(args.extra, args.families),
@@ -736,7 +785,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     except ValueError as exc:
         sys.exit(f"model_comparison.py: {exc}")
     print(f"model comparison -> {settings.out} ({settings.device}, {settings.threads} threads)")
-    print(f"wrote {run_comparison(settings)}")
+    try:
+        path = run_comparison(settings)
+    except ValueError as exc:  # settings that do not fit what is on disk, said plainly
+        sys.exit(f"model_comparison.py: {exc}")
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":

@@ -54,11 +54,13 @@ def results_markdown(
     screenshot_note: str | None,
     pending: Sequence[str] = (),
     image: str = "report.png",
+    notes: str | None = None,
 ) -> str:
     """The page: budget, success per task, normalised means, action conditioning, metrics,
     the study and the report's screenshot (``screenshot_note``: why there is none; ``image``:
     its link from where the page is written). ``pending``: runs not finished yet (the page
-    then says so at the top, and their columns say "pending")."""
+    then says so at the top, and their columns say "pending"). ``notes``: Markdown put in as
+    the "Reading" section, after the study."""
     s = json.loads((out / "comparison.json").read_text())
     lines = [
         "# Model comparison: five families at one training budget, judged by control",
@@ -89,6 +91,8 @@ def results_markdown(
     lines += conditioning_lines(out, s)
     lines += metrics_lines(out, s)
     lines += study_lines(out / "study" / "study.json")
+    if notes:
+        lines += ["", "## Reading", "", notes.strip()]
     lines += ["", "## The report", ""]
     if screenshot_note is None:
         lines += [

@@ -36,10 +36,10 @@ TINY = CollectionConfig(
 )
 
 
-def _compare(data: Path, out: Path) -> None:
+def _compare(data: Path, out: Path, *extra: str) -> None:
     command = [sys.executable, str(SCRIPT), "--smoke", "--data", str(data), "--out", str(out),
                "--families", *FAMILIES, "--threads", "1", "--extra", "=".join(EXTRA),
-               "--docs", str(out.parent / "docs" / "results.md")]  # fmt: skip
+               "--docs", str(out.parent / "docs" / "results.md"), *extra]  # fmt: skip
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     proc = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
@@ -158,6 +158,23 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
     assert (out / "results.md").read_text().split("## Training budget")[1] == results.split(
         "## Training budget"
     )[1]
+
+    # --publish-only: the page again from what is on disk, with a Reading section; nothing
+    # trained or planned, and the page still names the build's command.
+    notes = tmp_path / "notes.md"
+    notes.write_text("The baselines solve nothing here.\n")
+    _compare(data, out, "--publish-only", "--notes", str(notes))
+    third = _log(out)[2]
+    assert {x["stage"] for x in third} == {"study", "report", "results"}
+    page = (out / "results.md").read_text()
+    assert "## Reading\n\nThe baselines solve nothing here.\n" in page
+    assert "--publish-only" not in page  # the command shown is the build's
+    assert page.split("## Training budget")[1].split("## Reading")[0].rstrip() == results.split(
+        "## Training budget"
+    )[1].split("## The report")[0].rstrip()
+    for name in RUNS:
+        assert (out / "runs" / name / "trials.jsonl").read_text() == trials[name]
+
 
 
 @pytest.mark.parametrize(
