@@ -18,13 +18,15 @@ import time
 
 import torch
 
-from vp2.models.mcvd import UNet
+from vp2.models.mcvd import MCVD, UNet
 from vp2.models.registry import build_model
 
 REUSE = UNet.reusing_conditioning
 
 
-def timed(model, context, actions, per_step: bool) -> tuple[float, torch.Tensor]:
+def timed(
+    model: MCVD, context: torch.Tensor, actions: torch.Tensor, per_step: bool
+) -> tuple[float, torch.Tensor]:
     """Seconds of one ``predict`` and its frames; ``per_step`` recomputes the modulation at
     every denoising step (the context manager swapped for a no-op)."""
     UNet.reusing_conditioning = (  # type: ignore[method-assign]
