@@ -177,6 +177,18 @@ class Settings:
     smoke: bool
     command: str
 
+    def run_order(self) -> list[str]:
+        """The order the runs go in: the baselines (minutes), the extra models, the families."""
+        return [*BASELINES, *dict(self.extras), *self.families]
+
+    def table_names(self) -> list[str]:
+        """Every run, in the order of the page's columns and the report's runs."""
+        return [*self.families, *dict(self.extras), *BASELINES]
+
+    def predictor_names(self) -> list[str]:
+        """What predicts frames, so has metrics: families, extra models, repeat-last-frame."""
+        return [*self.families, *dict(self.extras), "repeat_last_frame"]
+
 
 # --------------------------------------------------------------------------- bookkeeping
 
@@ -524,7 +536,6 @@ def run_comparison(s: Settings) -> Path:
         return publish_found(s)
     s.out.mkdir(parents=True, exist_ok=True)
     stage_log = StageLog(s.out)
-    extras = dict(s.extras)
     # What results.md reads besides the stages' files: the settings, and what was compared.
     record = {
         **dataclasses.asdict(s),
@@ -536,15 +547,15 @@ def run_comparison(s: Settings) -> Path:
             for f in s.families
         },
         "extra_models": dict(s.extras),
-        "run_names": [*s.families, *extras, *BASELINES],
-        "metrics_names": [*s.families, *extras, "repeat_last_frame"],
+        "run_names": s.table_names(),
+        "metrics_names": s.predictor_names(),
         "vp2_version": vp2.__version__,
         "torch_version": torch.__version__,
     }
     write_json_atomic(s.out / "comparison.json", json_safe(record))
     train_records = {f: train_family(s, f, stage_log) for f in s.families}
     specs = {f: model_spec(f, records) for f, records in train_records.items()}
-    specs.update(extras)
+    specs.update(s.extras)
     for family, spec in specs.items():
         conditioning_stage(s, family, spec, stage_log)
     predictors = {**specs, "repeat_last_frame": "repeat_last_frame"}
@@ -554,7 +565,7 @@ def run_comparison(s: Settings) -> Path:
     # The baselines first (minutes), then the extra models, then the families in the order
     # given: the page is rewritten after every run that planned trials, so a build cut short
     # (a session's end) still publishes what it finished, and says what is pending.
-    order = [*BASELINES, *extras, *s.families]
+    order = s.run_order()
     run_dirs: dict[str, Path] = {}
     for name in order:
         result = runs_stage(s, name, specs.get(name), stage_log)
@@ -579,15 +590,12 @@ def publish_found(s: Settings) -> Path:
         families=tuple(build["families"]),
         extras=tuple((k, v) for k, v in build.get("extra_models", {}).items()),
     )
-    order = [*BASELINES, *dict(s.extras), *s.families]
+    order = s.run_order()
     run_dirs = {n: s.out / "runs" / n for n in order}
     run_dirs = {n: d for n, d in run_dirs.items() if (d / "summary.json").is_file()}
     if not run_dirs:
         raise ValueError(f"--publish-only: no finished run under {s.out / 'runs'}")
-    metrics_files = {
-        n: s.out / "metrics" / n / "metrics.json"
-        for n in [*s.families, *dict(s.extras), "repeat_last_frame"]
-    }
+    metrics_files = {n: s.out / "metrics" / n / "metrics.json" for n in s.predictor_names()}
     metrics_files = {n: p for n, p in metrics_files.items() if p.is_file()}
     pending = [n for n in order if n not in run_dirs]
     return publish(s, run_dirs, metrics_files, StageLog(s.out), pending)
@@ -606,7 +614,7 @@ def publish(
     entries = [(n, run_dirs[n], path) for n, path in metrics_files.items() if n in run_dirs]
     write_study(study(entries), study_dir)
     stage_log.add("study", "all", "written", entries=len(entries))
-    labels = [n for n in [*s.families, *dict(s.extras), *BASELINES] if n in run_dirs]
+    labels = [n for n in s.table_names() if n in run_dirs]
     report = write_report(
         [run_dirs[n] for n in labels],
         s.out / "report.html",
@@ -715,7 +723,7 @@ def parse_extras(items: Sequence[str], families: Sequence[str]) -> tuple[tuple[s
     Raises:
         ValueError: an item without ``=``, an empty side, or a label that is already taken.
     """
-    taken = {*families, *BASELINES, "repeat_last_frame"}
+    taken = {*families, *BASELINES}
     extras: list[tuple[str, str]] = []
     for item in items:
         label, sep, spec = item.partition("=")

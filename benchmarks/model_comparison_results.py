@@ -166,11 +166,10 @@ def success_lines(out: Path, s: dict[str, Any]) -> list[str]:
     for task in tasks:
         cells = []
         for name in names:
-            rows = (summaries[name] or {}).get("tasks", [])
-            row = next((r for r in rows if r["task"] == task), None)
             if summaries[name] is None:
                 cells.append("pending")
                 continue
+            row = next((r for r in summaries[name]["tasks"] if r["task"] == task), None)
             cells.append(
                 "–" if row is None
                 else f"{_success(row['mean'], row['min'], row['max'])} ({row['num_trials']})"

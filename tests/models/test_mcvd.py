@@ -172,7 +172,7 @@ def test_conditioning_is_computed_once_per_window_with_the_same_samples(monkeypa
     monkeypatch.setattr(SPADENorm, "modulation", counting)
     reused = model.predict(context, actions, generator=torch.Generator().manual_seed(0))
     assert len(calls) == 2 * len(norms)  # 2 windows, once per norm (not 4 steps × 2 windows)
-    assert all(m.reuse is None for m in norms)  # left off after sampling
+    assert not any(m.reusing or m.cached is not None for m in norms)  # off, freed after
 
     calls.clear()
     monkeypatch.setattr(UNet, "reusing_conditioning", lambda self: contextlib.nullcontext())

@@ -144,9 +144,10 @@ class SPADENorm(nn.Module):
         self.shared = nn.Sequential(nn.Conv2d(cond_channels, hidden, 3, 1, 1), nn.SiLU())
         self.gamma = nn.Conv2d(hidden, channels, 3, 1, 1)
         self.beta = nn.Conv2d(hidden, channels, 3, 1, 1)
-        #: ``(cond, scale, shift)`` of the last call while :meth:`UNet.reusing_conditioning`
-        #: is active, else ``None`` (every call computes its modulation).
-        self.reuse: list[tuple[Tensor, Tensor, Tensor]] | None = None
+        #: Set by :meth:`UNet.reusing_conditioning`: keep the last modulation (``cached``:
+        #: ``(cond, scale, shift)``) and reuse it while ``cond`` is the same tensor.
+        self.reusing = False
+        self.cached: tuple[Tensor, Tensor, Tensor] | None = None
 
     def modulation(self, cond: Tensor, size: torch.Size) -> tuple[Tensor, Tensor]:
         """``(1 + γ(c), β(c))`` at the spatial ``size``: a function of ``cond`` alone."""
@@ -156,13 +157,12 @@ class SPADENorm(nn.Module):
         return 1 + self.gamma(h), self.beta(h)
 
     def forward(self, x: Tensor, cond: Tensor) -> Tensor:
-        if self.reuse is None:
-            scale, shift = self.modulation(cond, x.shape[-2:])
-        elif self.reuse and self.reuse[0][0] is cond:
-            _, scale, shift = self.reuse[0]
+        if self.reusing and self.cached is not None and self.cached[0] is cond:
+            _, scale, shift = self.cached
         else:
             scale, shift = self.modulation(cond, x.shape[-2:])
-            self.reuse[:] = [(cond, scale, shift)]
+            if self.reusing:
+                self.cached = (cond, scale, shift)
         return self.norm(x) * scale + shift
 
 
@@ -254,12 +254,12 @@ class UNet(nn.Module):
         the weights must not change inside it."""
         norms = [m for m in self.modules() if isinstance(m, SPADENorm)]
         for m in norms:
-            m.reuse = []
+            m.reusing = True
         try:
             yield
         finally:
             for m in norms:
-                m.reuse = None
+                m.reusing, m.cached = False, None
 
     def forward(self, x: Tensor, t: Tensor, cond: Tensor) -> Tensor:
         """``x (B, 3W, H, W)``, ``t (B,)`` timesteps, ``cond (B, Cc, H, W)`` -> ``ε̂``."""
