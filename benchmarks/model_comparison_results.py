@@ -290,11 +290,19 @@ def study_lines(path: Path) -> list[str]:
         "| scope | metric | models | Spearman ρ | Kendall τ-b | note |",
         "|---|---|---|---|---|---|",
     ]
+    # A metric no model has (its weights are not on the machine) is one line, not a row of
+    # "undefined" per scope.
+    measured = {c["metric"] for c in data["correlations"] if c["n"]}
+    absent = [labels[k] for k in labels if k not in measured]
     for c in data["correlations"]:
+        if c["metric"] not in measured:
+            continue
         lines.append(
             f"| {c['scope']} | {labels[c['metric']]} | {c['n']} | "
             f"{rp(c['spearman'], c['spearman_p'])} | {rp(c['kendall'], c['kendall_p'])} | "
             f"{c['note']} |"
         )
+    if absent:
+        lines += ["", f"Left out: {', '.join(absent)}, which no model has (see the metrics table)."]
     notes = data.get("notes", [])
     return lines + ([""] + [f"- {n}" for n in notes] if notes else [])

@@ -193,3 +193,42 @@ def test_a_malformed_extra_model_stops_before_anything_runs(tmp_path, extra, mes
     assert proc.returncode == 1
     assert message in proc.stderr and "Traceback" not in proc.stderr
     assert not out.exists()
+
+
+def test_the_page_leaves_out_correlations_of_a_metric_no_model_has(tmp_path):
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        from model_comparison_results import study_lines
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+
+    def corr(scope, metric, n, rho):
+        note = "" if n >= 3 else f"{n} model(s); a rank correlation needs at least 3"
+        return {"scope": scope, "metric": metric, "n": n, "spearman": rho, "spearman_p": 0.5,
+                "kendall": rho, "kendall_p": 0.3, "note": note}
+
+    rows = [
+        {"label": name, "metrics": {"fvd": fvd, "lpips": None, "ssim": ssim},
+         "success": success, "success_min": success, "success_max": success, "num_trials": 6}
+        for name, fvd, ssim, success in
+        (("a", 300.0, 0.8, 0.5), ("b", 500.0, 0.6, 0.2), ("c", 700.0, 0.9, 0.0))
+    ]
+    scopes = ("robodesk/push_red", "all tasks")
+    study = {
+        "rows": {"all tasks": rows},
+        "correlations": [
+            corr(s, m, 0 if m == "lpips" else 3, None if m == "lpips" else -1.0)
+            for s in scopes for m in ("fvd", "lpips", "ssim")
+        ],
+        "notes": ["a: no LPIPS ×100 in ['m.json']"],
+    }
+    path = tmp_path / "study.json"
+    path.write_text(json.dumps(study))
+    text = "\n".join(study_lines(path))
+    table = [line for line in text.splitlines() if line.startswith("| robodesk/") or
+             line.startswith("| all tasks |")]
+    assert len(table) == 4  # FVD and SSIM in each of the two scopes; LPIPS in none
+    assert not any("LPIPS" in line for line in table)
+    assert "| all tasks | FVD | 3 | -1.000 (p 0.5) | -1.000 (p 0.3) |  |" in table
+    assert "Left out: LPIPS ×100, which no model has" in text
+    assert "| a | 300 | n/a | 0.8 | 50 [50, 50] | 6 |" in text
