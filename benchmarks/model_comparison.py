@@ -86,11 +86,13 @@ from vp2.benchmark.runner import RunResult, run_benchmark
 from vp2.data.loader import ClipDataset
 from vp2.data.storage import load_manifest
 from vp2.metrics.evaluate import evaluate_model, write_metrics
+from vp2.metrics.fvd import FrechetVideoDistance
 from vp2.report.page import write_report, write_run_report
 from vp2.report.study import study
 from vp2.report.study_output import write_study
 from vp2.training.checkpoint import list_checkpoints
 from vp2.training.config import TrainConfig
+from vp2.training.perceptual import MissingWeightsError
 from vp2.training.trainer import train
 from vp2.utils.io import atomic_path, json_safe, write_json_atomic
 from vp2.utils.tensors import resolve_device
@@ -417,8 +419,31 @@ def conditioning_stage(s: Settings, family: str, spec: str, stage_log: StageLog)
 # --------------------------------------------------------------------------- c. metrics
 
 
-def metrics_stage(s: Settings, name: str, spec: str, stage_log: StageLog) -> Path:
-    """``vp2 metrics`` of one model: ``metrics/<name>/metrics.json``."""
+#: Clips per prediction, metric and I3D batch of ``vp2 metrics`` (its default).
+METRICS_BATCH = 16
+
+
+def shared_fvd(s: Settings) -> FrechetVideoDistance | None:
+    """One FVD metric for every model's ``vp2 metrics``, so the held-out clips' I3D features
+    are computed once (``FrechetVideoDistance.reference_features``); ``None`` when FVD is off
+    or its weights are absent (each model's metrics then say why FVD was skipped)."""
+    if not s.fvd:
+        return None
+    try:
+        return FrechetVideoDistance(device=s.device, batch_size=METRICS_BATCH)
+    except MissingWeightsError:
+        return None
+
+
+def metrics_stage(
+    s: Settings,
+    name: str,
+    spec: str,
+    stage_log: StageLog,
+    fvd_metric: FrechetVideoDistance | None = None,
+) -> Path:
+    """``vp2 metrics`` of one model: ``metrics/<name>/metrics.json`` (``fvd_metric``: one
+    shared by the models, see :func:`shared_fvd`)."""
     path = s.out / "metrics" / name / "metrics.json"
     settings = {
         "model": spec,
@@ -438,10 +463,12 @@ def metrics_stage(s: Settings, name: str, spec: str, stage_log: StageLog) -> Pat
         s.data,
         num_clips=s.metrics_clips,
         seed=0,
+        batch_size=METRICS_BATCH,
         lpips_nets=s.lpips,
         fvd=s.fvd,
         device=s.device,
         progress=sys.stderr.isatty(),
+        fvd_metric=fvd_metric,
     )
     result["comparison_settings"] = settings
     write_metrics(path, result)
@@ -559,8 +586,10 @@ def run_comparison(s: Settings) -> Path:
     for family, spec in specs.items():
         conditioning_stage(s, family, spec, stage_log)
     predictors = {**specs, "repeat_last_frame": "repeat_last_frame"}
+    fvd_metric = shared_fvd(s)  # loading the I3D takes a second, even when all is done
     metrics_files = {
-        name: metrics_stage(s, name, spec, stage_log) for name, spec in predictors.items()
+        name: metrics_stage(s, name, spec, stage_log, fvd_metric)
+        for name, spec in predictors.items()
     }
     # The baselines first (minutes), then the extra models, then the families in the order
     # given: the page is rewritten after every run that planned trials, so a build cut short

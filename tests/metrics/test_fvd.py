@@ -320,3 +320,21 @@ def test_fvd_loads_weights_from_a_directory(weights_file, net, no_default_weight
     )
     with pytest.raises(MissingWeightsError, match=I3D_FILE):
         FrechetVideoDistance(device="cpu")
+
+
+def test_reference_features_go_through_the_network_once_per_content(net):
+    fvd = FrechetVideoDistance(net, device="cpu", batch_size=3, resolution=64)
+    calls = []
+    forward = fvd.i3d.forward
+    fvd.i3d.forward = lambda x: calls.append(x.shape[0]) or forward(x)
+    videos = _videos(3, seed=4, size=64)
+    first = fvd.reference_features(videos)
+    np.testing.assert_array_equal(first, fvd.features(videos))
+    assert calls == [3, 3]  # reference_features, then features
+    first[:] = 0  # the caller's copy, not the remembered one
+    np.testing.assert_array_equal(fvd.reference_features(videos.clone()), fvd.features(videos))
+    assert calls == [3, 3, 3]  # same content, another tensor: remembered
+    other = videos.clone()
+    other[0, 0, 0, 0, 0] += 1 / 255
+    fvd.reference_features(other)
+    assert calls == [3, 3, 3, 3]  # one changed pixel: computed

@@ -292,7 +292,7 @@ def _score(
         if fvd_model is not None:
             t = time.perf_counter()
             features["pred"].append(fvd_model.features(pred))
-            features["true"].append(fvd_model.features(true))
+            features["true"].append(fvd_model.reference_features(true))
             seconds["fvd"] += time.perf_counter() - t
         bar.update(len(frames))
     return sums, features, seconds
