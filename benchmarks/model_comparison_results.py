@@ -254,6 +254,13 @@ def metrics_lines(out: Path, s: dict[str, Any]) -> list[str]:
     return lines + ([""] + [f"- {n}" for n in notes] if notes else []) + [""]
 
 
+def _metric(x: float | None) -> str:
+    """Three significant digits, but no exponent for FVDs in the thousands."""
+    if x is None:
+        return "n/a"
+    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.3g}"
+
+
 def study_lines(path: Path) -> list[str]:
     data = _read(path)
     lines = ["## Metrics versus control (`vp2 study`)", ""]
@@ -268,7 +275,7 @@ def study_lines(path: Path) -> list[str]:
         "|---" * (len(labels) + 3) + "|",
     ]
     for row in data["rows"][ALL_TASKS]:
-        cells = ["n/a" if row["metrics"][k] is None else f"{row['metrics'][k]:.3g}" for k in labels]
+        cells = [_metric(row["metrics"][k]) for k in labels]
         success = (
             "n/a" if row["success"] is None
             else _success(row["success"], row["success_min"], row["success_max"])

@@ -211,7 +211,7 @@ def test_the_page_leaves_out_correlations_of_a_metric_no_model_has(tmp_path):
         {"label": name, "metrics": {"fvd": fvd, "lpips": None, "ssim": ssim},
          "success": success, "success_min": success, "success_max": success, "num_trials": 6}
         for name, fvd, ssim, success in
-        (("a", 300.0, 0.8, 0.5), ("b", 500.0, 0.6, 0.2), ("c", 700.0, 0.9, 0.0))
+        (("a", 300.0, 0.8, 0.5), ("b", 1454.85, 0.6, 0.2), ("c", 99.44, 0.9, 0.0))
     ]
     scopes = ("robodesk/push_red", "all tasks")
     study = {
@@ -232,3 +232,4 @@ def test_the_page_leaves_out_correlations_of_a_metric_no_model_has(tmp_path):
     assert "| all tasks | FVD | 3 | -1.000 (p 0.5) | -1.000 (p 0.3) |  |" in table
     assert "Left out: LPIPS ×100, which no model has" in text
     assert "| a | 300 | n/a | 0.8 | 50 [50, 50] | 6 |" in text
+    assert "| b | 1455 | n/a | 0.6 |" in text and "| c | 99.4 | n/a | 0.9 |" in text
