@@ -15,7 +15,7 @@ import argparse
 
 import torch
 
-from vp2.metrics.evaluate import evaluate_model
+from vp2.metrics.evaluate import DEFAULT_BATCH_SIZE, evaluate_model
 from vp2.metrics.fvd import FrechetVideoDistance
 
 
@@ -33,10 +33,10 @@ def main() -> None:
                            device="cpu", progress=False, fvd_metric=fvd)
         return r["seconds"]["fvd"], r["metrics"]["fvd"]
 
-    shared = FrechetVideoDistance(device="cpu", batch_size=16)
+    shared = FrechetVideoDistance(device="cpu", batch_size=DEFAULT_BATCH_SIZE)
     each, once, values = 0.0, 0.0, set()
     for _ in range(args.models):  # interleaved, so that load changes hit both ways alike
-        s, v = score(FrechetVideoDistance(device="cpu", batch_size=16))
+        s, v = score(FrechetVideoDistance(device="cpu", batch_size=DEFAULT_BATCH_SIZE))
         each += s
         values.add(v)
         s, v = score(shared)

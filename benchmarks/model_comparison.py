@@ -85,7 +85,7 @@ from vp2.benchmark.model_spec import resolve_model
 from vp2.benchmark.runner import RunResult, run_benchmark
 from vp2.data.loader import ClipDataset
 from vp2.data.storage import load_manifest
-from vp2.metrics.evaluate import evaluate_model, write_metrics
+from vp2.metrics.evaluate import DEFAULT_BATCH_SIZE, evaluate_model, write_metrics
 from vp2.metrics.fvd import FrechetVideoDistance
 from vp2.report.page import write_report, write_run_report
 from vp2.report.study import study
@@ -419,10 +419,6 @@ def conditioning_stage(s: Settings, family: str, spec: str, stage_log: StageLog)
 # --------------------------------------------------------------------------- c. metrics
 
 
-#: Clips per prediction, metric and I3D batch of ``vp2 metrics`` (its default).
-METRICS_BATCH = 16
-
-
 def shared_fvd(s: Settings) -> FrechetVideoDistance | None:
     """One FVD metric for every model's ``vp2 metrics``, so the held-out clips' I3D features
     are computed once (``FrechetVideoDistance.reference_features``); ``None`` when FVD is off
@@ -430,7 +426,7 @@ def shared_fvd(s: Settings) -> FrechetVideoDistance | None:
     if not s.fvd:
         return None
     try:
-        return FrechetVideoDistance(device=s.device, batch_size=METRICS_BATCH)
+        return FrechetVideoDistance(device=s.device, batch_size=DEFAULT_BATCH_SIZE)
     except MissingWeightsError:
         return None
 
@@ -463,7 +459,7 @@ def metrics_stage(
         s.data,
         num_clips=s.metrics_clips,
         seed=0,
-        batch_size=METRICS_BATCH,
+        batch_size=DEFAULT_BATCH_SIZE,
         lpips_nets=s.lpips,
         fvd=s.fvd,
         device=s.device,

@@ -196,11 +196,7 @@ def test_a_malformed_extra_model_stops_before_anything_runs(tmp_path, extra, mes
 
 
 def test_the_page_leaves_out_correlations_of_a_metric_no_model_has(tmp_path):
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        from model_comparison_results import study_lines
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
+    from benchmarks.model_comparison_results import study_lines
 
     def corr(scope, metric, n, rho):
         note = "" if n >= 3 else f"{n} model(s); a rank correlation needs at least 3"

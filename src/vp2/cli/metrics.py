@@ -11,7 +11,13 @@ from typing import Any
 
 from vp2.data.datasets import default_dataset
 from vp2.data.storage import MANIFEST, load_manifest
-from vp2.metrics.evaluate import DEFAULT_NUM_CLIPS, METRICS_FILE, evaluate_model, write_metrics
+from vp2.metrics.evaluate import (
+    DEFAULT_BATCH_SIZE,
+    DEFAULT_NUM_CLIPS,
+    METRICS_FILE,
+    evaluate_model,
+    write_metrics,
+)
 from vp2.training.perceptual import BACKBONES
 from vp2.utils.kv import parse_key_values, yaml_value
 
@@ -61,7 +67,7 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     )
     p.add_argument("--num-clips", type=int, default=DEFAULT_NUM_CLIPS, help="default: %(default)s")
     p.add_argument("--seed", type=int, default=0, help="clip choice and model noise")
-    p.add_argument("--batch-size", type=int, default=16, help="clips per batch")
+    p.add_argument("--batch-size", type=int, default=DEFAULT_BATCH_SIZE, help="clips per batch")
     p.add_argument("--no-fvd", action="store_true", help="skip FVD (the slowest metric)")
     p.add_argument(
         "--lpips",

@@ -46,6 +46,8 @@ log = logging.getLogger(__name__)
 
 #: Clips evaluated by default (as the paper's FVD).
 DEFAULT_NUM_CLIPS = 1000
+#: Clips per prediction, metric and I3D batch by default.
+DEFAULT_BATCH_SIZE = 16
 #: Per-frame PSNR is capped here (an MSE of 1e-10): identical frames would give ``inf``.
 PSNR_CAP = 100.0
 #: The file :func:`write_metrics` writes inside a directory.
@@ -113,7 +115,7 @@ def evaluate_model(
     dataset: ClipDataset | str | os.PathLike[str],
     num_clips: int = DEFAULT_NUM_CLIPS,
     seed: int = 0,
-    batch_size: int = 16,
+    batch_size: int = DEFAULT_BATCH_SIZE,
     lpips_nets: Sequence[str] = ("alex", "vgg"),
     fvd: bool = True,
     device: str | torch.device | None = None,
