@@ -24,7 +24,9 @@ c. **metrics**: ``vp2 metrics`` of each family and of repeat-last-frame on held-
 
 d. **runs**: ``vp2 run`` of each family, repeat-last-frame and random actions on the RoboDesk
    tasks (the first ``--num-instances`` of each, ``--seeds``, ``--num-samples`` planner
-   samples), resumed trial by trial.
+   samples), resumed trial by trial. ``--seeds-for RUN=SEEDS`` gives one run a subset of the
+   seeds (a model too slow to plan with all of them in the time there is; the page says so,
+   and dropping the flag later resumes the missing seeds).
 e. **study** (``vp2 study``: metrics versus control, rank correlations) and **report**
    (``vp2 report``), normalised by the shipped oracle.
 f. **screenshot** of the report's top, if Chromium is on PATH.
@@ -159,6 +161,7 @@ class Settings:
     tasks: tuple[str, ...]
     num_instances: int
     seeds: tuple[int, ...]
+    seeds_for: tuple[tuple[str, tuple[int, ...]], ...]  # (run, seeds): fewer seeds for a run
     num_samples: int
     num_steps: int
     batch_size: int
@@ -178,6 +181,11 @@ class Settings:
     skip_train: bool
     smoke: bool
     command: str
+
+    def seeds_of(self, name: str) -> tuple[int, ...]:
+        """The control-run seeds of run ``name``: ``--seeds``, unless ``--seeds-for`` gives
+        it fewer (a slow model's runs on a subset)."""
+        return dict(self.seeds_for).get(name, self.seeds)
 
     def run_order(self) -> list[str]:
         """The order the runs go in: the baselines (minutes), the extra models, the families."""
@@ -483,7 +491,7 @@ def run_config(s: Settings, name: str, spec: str | None) -> RunConfig:
         out=str(s.out / "runs" / name),
         tasks=s.tasks,
         num_instances=s.num_instances,
-        seeds=s.seeds,
+        seeds=s.seeds_of(name),
         num_samples=s.num_samples,
         num_steps=s.num_steps,
         workers=s.workers,
@@ -738,6 +746,14 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="also evaluate this model (any --model spec of vp2 run, e.g. a checkpoint trained "
         "elsewhere) beside the families, outside the training budget; repeatable",
     )
+    p.add_argument(
+        "--seeds-for",
+        action="append",
+        default=[],
+        metavar="RUN=SEEDS",
+        help="control-run seeds of one run, a subset of --seeds, comma-separated (e.g. "
+        "mcvd=0: a slow model planned with one seed); the page says so; repeatable",
+    )
     p.add_argument("--smoke", action="store_true", help="a tiny configuration (tests)")
     return p.parse_args(argv)
 
@@ -762,6 +778,43 @@ def parse_extras(items: Sequence[str], families: Sequence[str]) -> tuple[tuple[s
     return tuple(extras)
 
 
+def parse_seeds_for(
+    items: Sequence[str], names: Sequence[str], seeds: Sequence[int]
+) -> tuple[tuple[str, tuple[int, ...]], ...]:
+    """``RUN=S[,S...]`` items -> ``((run, seeds), ...)``; ``names`` are the runs there are.
+
+    Raises:
+        ValueError: an item that is not ``RUN=SEEDS``, a run there is not, a run given twice,
+            or seeds that are not integers of ``--seeds``.
+    """
+    out: dict[str, tuple[int, ...]] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        try:
+            chosen = tuple(int(x) for x in value.split(",") if x.strip())
+        except ValueError:
+            chosen = ()
+        if not sep or not name or not chosen:
+            raise ValueError(f"--seeds-for {item!r}: expected RUN=SEEDS, e.g. mcvd=0 or mcvd=0,1")
+        if name not in names:
+            raise ValueError(
+                f"--seeds-for {item!r}: no run {name!r} in this comparison; the runs are "
+                f"{', '.join(names)}"
+            )
+        if name in out:
+            raise ValueError(f"--seeds-for {item!r}: {name} is given seeds twice; give it once")
+        outside = sorted(set(chosen) - set(seeds))
+        if outside:
+            raise ValueError(
+                f"--seeds-for {item!r}: seed(s) {outside} are not among --seeds "
+                f"{' '.join(map(str, seeds))}; a run may only drop seeds, so its column "
+                "compares with the others on the seeds they share"
+            )
+        out[name] = tuple(sorted(set(chosen)))
+    return tuple(out.items())
+
+
 def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Settings:
     """The settings of a command line (``argv``, recorded as the command that rebuilds the
     results); sets torch's thread count if ``--threads`` is given."""
@@ -776,6 +829,9 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
         torch.set_num_threads(args.threads)
     device = str(resolve_device(None if args.device == "auto" else args.device))
     command = " ".join(["python", shlex.quote(sys.argv[0]), *map(shlex.quote, argv)])
+    extras = parse_extras(args.extra, args.families)
+    names = [*args.families, *dict(extras), *BASELINES]
+    seeds = tuple(value["seeds"])
     return Settings(
         out=args.out,
         data=args.data,
@@ -784,10 +840,11 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
         publish_only=args.publish_only,
         budget_minutes=float(value["budget_minutes"]),
         families=tuple(args.families),
-        extras=parse_extras(args.extra, args.families),
+        extras=extras,
         tasks=tuple(value["tasks"]),
         num_instances=value["num_instances"],
-        seeds=tuple(value["seeds"]),
+        seeds=seeds,
+        seeds_for=parse_seeds_for(args.seeds_for, names, seeds),
         num_samples=value["num_samples"],
         num_steps=value["num_steps"],
         batch_size=value["batch_size"],

@@ -151,11 +151,16 @@ def success_lines(out: Path, s: dict[str, Any]) -> list[str]:
                 tasks.append(row["task"])
             if row.get("oracle_mean") is not None:
                 oracle[row["task"]] = row["oracle_mean"]
+    fewer = "".join(
+        f" ({name}: seed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))} only, "
+        "`--seeds-for`)"
+        for name, seeds in s.get("seeds_for", [])
+    )
     lines = [
         "## Success per task",
         "",
         f"`vp2 run` on {', '.join(s['tasks'])}: the first {s['num_instances']} instance(s) of "
-        f"each task, seeds {', '.join(map(str, s['seeds']))}, MPPI with {s['num_samples']} "
+        f"each task, seeds {', '.join(map(str, s['seeds']))}{fewer}, MPPI with {s['num_samples']} "
         f"planner samples (SPEC: 200, 800 for open_slide/open_drawer), {s['num_steps']} control "
         "steps. Cell: success % mean over seeds [min, max] (trials). The shipped oracle's column "
         "is its own measurement (how: the first note), not a run of this comparison.",

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -229,3 +230,55 @@ def test_the_page_leaves_out_correlations_of_a_metric_no_model_has(tmp_path):
     assert "Left out: LPIPS ×100, which no model has" in text
     assert "| a | 300 | n/a | 0.8 | 50 [50, 50] | 6 |" in text
     assert "| b | 1455 | n/a | 0.6 |" in text and "| c | 99.4 | n/a | 0.9 |" in text
+
+
+@pytest.fixture
+def comparison(monkeypatch):
+    """The script as a module (it imports its sibling scripts from its own folder)."""
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))
+    import benchmarks.model_comparison as module
+
+    return module
+
+
+def _settings(module, *argv: str):
+
+    argv = ["--smoke", "--families", *FAMILIES, "--seeds", "0", "1", *argv]
+    return module.settings_from_args(module.parse_args(argv), argv)
+
+
+def test_seeds_for_gives_one_run_a_subset_of_the_seeds(comparison, tmp_path):
+    run_config = comparison.run_config
+    s = _settings(
+        comparison, "--seeds-for", "fitvid=1", "--seeds-for", "random=1,0", "--out", str(tmp_path)
+    )
+    assert s.seeds_for == (("fitvid", (1,)), ("random", (0, 1)))
+    assert tuple(run_config(s, "fitvid", "fitvid:x.pt").seeds) == (1,)
+    assert tuple(run_config(s, "struct_vrnn", "struct_vrnn:x.pt").seeds) == (0, 1)
+    assert tuple(run_config(s, "random", None).seeds) == (0, 1)
+    assert s.seeds_of("repeat_last_frame") == (0, 1)
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("fitvid", "expected RUN=SEEDS"),
+        ("fitvid=", "expected RUN=SEEDS"),
+        ("fitvid=a", "expected RUN=SEEDS"),
+        ("mcvd=0", "no run 'mcvd' in this comparison; the runs are fitvid, struct_vrnn"),
+        ("fitvid=2", "seed(s) [2] are not among --seeds 0 1"),
+    ],
+)
+def test_a_malformed_seeds_for_says_what_is_wrong(comparison, item, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        _settings(comparison, "--seeds-for", item)
+
+
+def test_the_page_names_the_runs_on_fewer_seeds(tmp_path):
+    from benchmarks.model_comparison_results import success_lines
+
+    s = {"run_names": ["fitvid"], "tasks": ["robodesk"], "num_instances": 3, "seeds": [0, 1],
+         "seeds_for": [["fitvid", [0]]], "num_samples": 50, "num_steps": 15}  # fmt: skip
+    text = "\n".join(success_lines(tmp_path, s))
+    assert "seeds 0, 1 (fitvid: seed 0 only, `--seeds-for`), MPPI" in text
+    assert "| robodesk" not in text  # no summary on disk: no task rows
