@@ -40,7 +40,7 @@ from tqdm import tqdm
 from vp2.benchmark.config import RunConfig
 from vp2.benchmark.model_spec import resolve_model
 from vp2.benchmark.runner import select_instances
-from vp2.benchmark.trial import trial_seed
+from vp2.benchmark.trial import goal_image_at, trial_seed
 from vp2.data.suite import TaskSuite
 from vp2.envs import env_class, split_name
 from vp2.planning.agent import PlanningAgent, frames_to_tensor
@@ -74,8 +74,7 @@ def probe(model, instance, num_samples: int, seed: int) -> dict:
     env = instance.make_env(observation_size=None)
     try:
         size = int(model.image_size)
-        env.reset_to(instance.goal_state)
-        goal = env.render(size)
+        goal = goal_image_at(instance, env, size)  # as a trial takes it
         env.reset_to(instance.init_state)
         env.set_goal(instance.goal_state)
         frames = [env.render(size)]

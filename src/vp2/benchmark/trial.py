@@ -100,6 +100,15 @@ class TrialResult:
         }
 
 
+def goal_image_at(instance: TaskInstance, env: Env, size: int) -> np.ndarray:
+    """The instance's goal image at ``size`` pixels: the shipped one, or at another
+    resolution re-rendered from the goal state in ``env`` (which is left in that state)."""
+    if instance.goal_image.shape[0] == size:
+        return instance.goal_image
+    env.reset_to(instance.goal_state)
+    return env.render(size)
+
+
 class ControlTrial:
     """Runs one agent on one task instance.
 
@@ -142,19 +151,12 @@ class ControlTrial:
             if self._env is None:
                 env.close()
 
-    def _goal_image(self, env: Env, size: int) -> np.ndarray:
-        if self.instance.goal_image.shape[0] == size:
-            return self.instance.goal_image
-        # Another resolution: the goal is re-rendered from its state, as every image can be.
-        env.reset_to(self.instance.goal_state)
-        return env.render(size)
-
     def _run(self, env: Env) -> TrialResult:
         inst, agent = self.instance, self.agent
         check_agent_for_env(agent, env.action_dim, inst.task)
         size = agent.image_size
         start = time.perf_counter()
-        goal_image = self._goal_image(env, size)
+        goal_image = goal_image_at(inst, env, size)
         env.reset_to(inst.init_state)
         env.set_goal(inst.goal_state)
         agent.reset(inst.task, goal_image, trial_seed(inst.task, inst.index, self.seed))
