@@ -27,7 +27,6 @@ of 50 on one CPU thread) costs twice that per instance.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -181,8 +180,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         print(headline(label, [r for r in rows if r["model"] == label]))
     print(table(rows))
     if args.json is not None:
-        write_json_atomic(args.json, [{k: (None if isinstance(v, float) and math.isnan(v)
-                                           else v) for k, v in r.items()} for r in rows])
+        write_json_atomic(args.json, rows)  # undefined ρ are None already (see rho)
 
 
 if __name__ == "__main__":
