@@ -24,13 +24,15 @@ from pathlib import Path
 
 import numpy as np
 
-from vp2.benchmark.results import is_ok, read_trials, trial_key
+from vp2.benchmark.results import is_ok, trial_key
+from vp2.benchmark.runner import trials_of_run
 
 
 def executed(run_dir: Path) -> dict[tuple, np.ndarray]:
-    """``(task, instance, seed) -> (T, A)`` executed actions of a run's finished trials."""
+    """``(task, instance, seed) -> (T, A)`` executed actions of a run's finished trials (those
+    its config covers, as its summary counts them)."""
     out = {}
-    for record in read_trials(run_dir):
+    for record in trials_of_run(run_dir)[0]:
         if is_ok(record):
             out[trial_key(record)] = np.asarray(record["actions"], dtype=np.float64)
     return out

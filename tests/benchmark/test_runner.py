@@ -157,6 +157,41 @@ def test_resume_with_more_seeds_runs_only_the_new_keys(reference, tmp_path):
     assert _outcomes(grown.records) == expected
 
 
+def test_trials_outside_the_runs_seeds_are_named_and_not_counted(reference, tmp_path):
+    from vp2.benchmark.runner import trials_of_run
+    from vp2.report.runs import load_runs
+    from vp2.report.study import load_entry
+
+    run_dir = tmp_path / "shrink"
+    run_dir.mkdir()
+    # Seeds 0-2 on disk (instance 0 succeeds, 1 fails), the config asks for seed 2 only.
+    lines = (reference.run_dir / "trials.jsonl").read_text()
+    (run_dir / "trials.jsonl").write_text(lines)
+    shrunk = run_benchmark(_config(tmp_path, "shrink", seeds=(2,), resume=True))
+    assert shrunk.num_run == 0 and shrunk.num_skipped == 2
+    assert sorted(trial_key(r) for r in shrunk.records) == [
+        ("tabletop/push_sphere", 0, 2), ("tabletop/push_sphere", 1, 2)
+    ]
+    assert shrunk.summary.tasks[0].per_seed == {2: 0.5}
+    (note,) = [w for w in shrunk.summary.warnings if "not counted" in w]
+    assert note.startswith("4 trial(s) in") and "tabletop/push_sphere #0 seed 0" in note
+    assert "not counted" in (run_dir / "summary.md").read_text()
+    ours, outside = trials_of_run(run_dir)
+    assert len(ours) == 2 and sorted(r["seed"] for r in outside) == [0, 0, 1, 1]
+    (view,) = load_runs([run_dir])
+    assert len(view.records) == 2 and view.outside == note and note in view.summary.warnings
+    entry = load_entry("m", run_dir, _metrics_file(tmp_path))
+    assert len(entry.records) == 2 and entry.outside == note
+    # A directory whose config covers all its trials has no note.
+    assert trials_of_run(reference.run_dir)[1] == [] and load_runs([reference.run_dir])[0].outside is None
+
+
+def _metrics_file(tmp_path: Path) -> Path:
+    path = tmp_path / "metrics.json"
+    path.write_text(json.dumps({"metrics": {"ssim": 0.5}}))
+    return path
+
+
 def test_resume_refuses_trials_of_a_changed_task_suite(tmp_path):
     import dataclasses
 

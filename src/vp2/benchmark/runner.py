@@ -14,7 +14,9 @@
    failure; but a model that fails at its boundary the same way twice in a row before any
    trial finished stops the run (:class:`ModelFailure`), and a model that does not fit the
    run (action size, gradients for ``cem_gd``/``lbfgs``) is refused before any trial;
-5. writes and returns the summary table (per task: mean success over seeds with min/max,
+5. writes and returns the summary table of the trials its settings cover (records of other
+   seeds or instances in the directory are named in a warning, not counted:
+   :func:`trials_of_run`; per task: mean success over seeds with min/max,
    normalised by an oracle run if one is given, else by the shipped oracle,
    :mod:`vp2.benchmark.shipped_oracle`; an oracle run itself is not normalised), then calls
    the ``after_run`` hook with the run directory (``vp2 run`` and ``vp2 main`` pass the HTML
@@ -45,6 +47,7 @@ import collections
 import dataclasses
 import logging
 import operator
+import os
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -70,6 +73,7 @@ from vp2.benchmark.run_dir import (
     check_same_instances,
     load_existing,
     prepare_run_dir,
+    read_config,
 )
 from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
 from vp2.benchmark.worker import (
@@ -266,8 +270,11 @@ def run_benchmark(
         bar.close()
         stream.close()
 
-    records = read_trials(run_dir)
-    summary = _write_summary(run_dir, config, records)
+    records, outside = _of_keys(read_trials(run_dir), keys)
+    notes = [outside_note(run_dir, outside)] if outside else []
+    for note in notes:
+        log.warning("%s", note)
+    summary = _write_summary(run_dir, config, records, notes)
     if after_run is not None:
         after_run(run_dir)
     return RunResult(
@@ -301,9 +308,47 @@ def _fail_fast_message(
     )
 
 
-def _write_summary(run_dir: Path, config: RunConfig, records: list[dict[str, Any]]) -> Summary:
+def _of_keys(
+    records: list[dict[str, Any]], keys: Sequence[TrialKey]
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    wanted = set(keys)
+    ours = [r for r in records if trial_key(r) in wanted]
+    return ours, [r for r in records if trial_key(r) not in wanted]
+
+
+def trials_of_run(
+    run_dir: str | os.PathLike[str],
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The records of a run directory that its ``config.yaml`` covers (its seeds, tasks and
+    instances), and the others: trials left there by a run with more seeds or instances, or
+    appended from elsewhere. Every score of a run (its summary, ``vp2 report``, ``vp2 study``)
+    counts the first list only. Without a readable config or task suite every record counts.
+    """
+    records = read_trials(run_dir)
+    try:
+        config = read_config(run_dir)
+        keys = trial_keys(select_instances(TaskSuite.load(config.suite), config), config.seeds)
+    except (OSError, KeyError, TypeError, ValueError) as exc:
+        log.debug("%s: all %d trial(s) count (%r)", run_dir, len(records), exc)
+        return records, []
+    return _of_keys(records, keys)
+
+
+def outside_note(run_dir: str | os.PathLike[str], outside: list[dict[str, Any]]) -> str:
+    """What a reader is told about the records :func:`trials_of_run` leaves out."""
+    task, index, seed = trial_key(outside[0])
+    return (
+        f"{len(outside)} trial(s) in {Path(run_dir) / TRIALS_FILE} are outside the run's "
+        f"seeds, tasks or instances (e.g. {task} #{index} seed {seed}) and are not counted; "
+        "resume the run with settings that include them to count them"
+    )
+
+
+def _write_summary(
+    run_dir: Path, config: RunConfig, records: list[dict[str, Any]], notes: Sequence[str] = ()
+) -> Summary:
     """Scores the run (normalised as :func:`~vp2.benchmark.shipped_oracle.summarize_run`
-    does it) and writes ``summary.json`` and ``summary.md``."""
+    does it) and writes ``summary.json`` and ``summary.md`` (``notes``: warnings to add)."""
     is_oracle = is_oracle_config(config.to_dict())
     summary = summarize_run(
         records,
@@ -312,6 +357,7 @@ def _write_summary(run_dir: Path, config: RunConfig, records: list[dict[str, Any
         shipped=None if is_oracle or config.oracle else load_shipped_oracle(),
     )
     summary.warnings += [f"not the SPEC protocol: {d}" for d in config.deviations()]
+    summary.warnings += list(notes)
     write_json_atomic(run_dir / SUMMARY_JSON, json_safe(summary.to_dict()))
     with atomic_path(run_dir / SUMMARY_FILE) as tmp:
         tmp.write_text(format_summary(summary, title=f"vp2 run {run_dir.name}") + "\n")

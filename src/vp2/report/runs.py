@@ -10,7 +10,8 @@ from typing import Any
 
 import yaml
 
-from vp2.benchmark.results import Summary, read_trials, summarize
+from vp2.benchmark.results import Summary, summarize
+from vp2.benchmark.runner import outside_note, trials_of_run
 from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
 
 PathLike = str | os.PathLike[str]
@@ -29,6 +30,8 @@ class RunView:
         summary: Scores, normalised when an oracle run is known.
         is_oracle: Whether the run is a simulator-oracle run.
         oracle_source: Where the normalisation came from (``None``: not normalised).
+        outside: The note on trials in the directory that its config does not cover, which
+            are not counted (:func:`vp2.benchmark.runner.trials_of_run`); ``None``: none.
     """
 
     run_dir: Path
@@ -39,6 +42,7 @@ class RunView:
     summary: Summary
     is_oracle: bool
     oracle_source: str | None = None
+    outside: str | None = None
 
 
 def model_label(config: Mapping[str, Any]) -> str:
@@ -84,7 +88,7 @@ def load_runs(
         if not (run_dir / "trials.jsonl").is_file():
             raise FileNotFoundError(f"{run_dir}: no trials.jsonl (not a vp2 run directory)")
         config, deviations = _read_config(run_dir)
-        records = read_trials(run_dir)
+        records, outside = trials_of_run(run_dir)
         is_oracle = is_oracle_config(config)
         runs.append(
             RunView(
@@ -95,6 +99,7 @@ def load_runs(
                 records,
                 summarize(records),
                 is_oracle,
+                outside=outside_note(run_dir, outside) if outside else None,
             )
         )
     counts: dict[str, int] = {}
@@ -120,4 +125,7 @@ def load_runs(
             # Without a shipped oracle the section says so once, not every run's notes.
             r.summary = summarize_run(r.records, shipped=shipped, note_missing=False)
             r.oracle_source = r.summary.oracle_source
+    for r in runs:
+        if r.outside:
+            r.summary.warnings.append(r.outside)
     return runs

@@ -31,7 +31,8 @@ from html import escape
 from pathlib import Path
 from typing import Any
 
-from vp2.benchmark.results import is_ok, read_trials, summarize
+from vp2.benchmark.results import is_ok, summarize
+from vp2.benchmark.runner import outside_note, trials_of_run
 from vp2.report.charts import scatter_plot
 from vp2.report.correlation import Correlation, rank_correlation
 from vp2.utils.io import json_safe
@@ -83,6 +84,8 @@ class StudyEntry:
         records: The run's trial records.
         metrics: Environment (or :data:`ANY_ENV`) -> raw metric values of that ``metrics.json``.
         metrics_files: The files read.
+        outside: The note on trials in the run directory that its config does not cover,
+            which are not counted (:func:`vp2.benchmark.runner.trials_of_run`).
     """
 
     label: str
@@ -90,6 +93,7 @@ class StudyEntry:
     records: list[dict[str, Any]]
     metrics: dict[str, dict[str, float]]
     metrics_files: list[Path]
+    outside: str | None = None
 
     def metric(self, source: str, env: str | None) -> float | None:
         """The raw value of ``source`` for environment ``env`` (``None``: all tasks)."""
@@ -130,7 +134,9 @@ def load_entry(
             raise ValueError(f"entry {label!r}: two metrics files for environment {env!r}")
         metrics[env] = {k: v for k, v in data.get("metrics", {}).items() if v is not None}
         paths.append(path)
-    return StudyEntry(label, run_dir, read_trials(run_dir), metrics, paths)
+    records, outside = trials_of_run(run_dir)
+    note = outside_note(run_dir, outside) if outside else None
+    return StudyEntry(label, run_dir, records, metrics, paths, note)
 
 
 # --------------------------------------------------------------------------- the study
@@ -401,6 +407,8 @@ def study(
             )
             correlations.append(Correlation(scope, m.key, len(pairs), rho, rho_p, tau, tau_p, note))
     for e in loaded:
+        if e.outside:
+            notes.append(f"{e.label}: {e.outside}")
         missing = [t for t in tasks if not any(r["task"] == t and is_ok(r) for r in e.records)]
         if missing:
             notes.append(f"{e.label}: no finished trials on {missing}")
