@@ -260,10 +260,9 @@ def metrics_lines(out: Path, s: dict[str, Any]) -> list[str]:
 
 
 def _metric(x: float | None) -> str:
-    """Three significant digits, but no exponent for FVDs in the thousands."""
-    if x is None:
-        return "n/a"
-    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.3g}"
+    """One decimal, as the metrics table prints FVD and SSIM ×100 (``49.99`` reads ``50.0``,
+    never ``50`` beside ``2.72``)."""
+    return "n/a" if x is None else f"{x:.1f}"
 
 
 def study_lines(path: Path) -> list[str]:
