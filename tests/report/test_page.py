@@ -77,7 +77,8 @@ def test_bars_are_proportional_to_success_with_min_max_error_bars(tmp_path):
         assert (float(low), float(high)) == (0.5, 1.0)
         assert float(y_low) - float(y_high) == pytest.approx(0.5 * PLOT_HEIGHT)
     # The table shows the same numbers: mean [min, max] in %.
-    assert "66.7 [50.0, 100.0]" in html and "100.0 [100.0, 100.0]" in html
+    assert '66.7 <span class="nw">[50.0, 100.0]</span>' in html
+    assert '100.0 <span class="nw">[100.0, 100.0]</span>' in html
 
 
 def test_report_is_self_contained(tmp_path):
@@ -276,6 +277,20 @@ def test_report_renders_in_headless_chromium(tmp_path):
                 break
         height = browser.evaluate("document.documentElement.scrollHeight")
         full = browser.screenshot({"x": 0, "y": 0, "width": 1200, "height": height})
+        # On a page narrower than a chart (many runs and tasks, or a small window) the charts
+        # scale down to fit instead of running off the right edge.
+        narrow = browser.evaluate(
+            "(() => { document.body.style.maxWidth = '300px';"
+            " const right = document.body.getBoundingClientRect().right;"
+            " return Array.from(document.querySelectorAll('svg.chart')).map(s => {"
+            " const r = s.getBoundingClientRect(); return [r.right <= right + 0.5, r.width, r.height]; });"
+            " })()"
+        )
+        # ... and tables wider than the page scroll inside their own box: the page itself never
+        # scrolls sideways.
+        page_width = browser.evaluate(
+            "[document.documentElement.scrollWidth, document.documentElement.clientWidth]"
+        )
         browser.drain(0.3)
         console = list(browser.console)
     assert console == []
@@ -283,6 +298,8 @@ def test_report_renders_in_headless_chromium(tmp_path):
     assert len(charts) == 4 and all(width > 300 for width, _ in charts)
     assert [n for _, n in charts] == [6, 3, 3, 3]  # 3 models x 2 groups; 3 points per scatter
     assert changed > 0, "the trial GIF did not change between screenshots: not playing"
+    assert len(narrow) == 4 and all(fits and 0 < w <= 300 and h > 0 for fits, w, h in narrow)
+    assert page_width[0] <= page_width[1], f"the page scrolls sideways: {page_width}"
     shot = iio.imread(full)[..., :3]
     assert shot.shape[1] == 1200 and shot.shape[0] == height
     assert shot.std() > 20 and (shot.min(axis=-1) < 100).mean() > 0.01  # text and charts

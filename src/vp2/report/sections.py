@@ -53,10 +53,17 @@ def success_chart(runs: Sequence[RunView]) -> str:
     return bar_chart(groups, [r.label for r in runs], values, low, high)
 
 
+def _mean_range(mean: float | None, low: float | None, high: float | None) -> str:
+    """``mean [min, max]`` in %, which may wrap before the bracket (never inside it)."""
+    return f'{_pct(mean)} <span class="nw">[{_pct(low)}, {_pct(high)}]</span>'
+
+
 def success_table(runs: Sequence[RunView]) -> str:
     """Success per task and model: mean [min, max] over seeds, and the totals."""
     tasks = task_order(runs)
-    head = "".join(f"<th>{escape(r.label)}</th>" for r in runs)
+    # Labels may break after an underscore and task names after their environment, so that
+    # the columns of many runs fit the page.
+    head = "".join(f"<th>{escape(r.label).replace('_', '_<wbr>')}</th>" for r in runs)
     rows = []
     for task in tasks:
         cells = []
@@ -65,24 +72,26 @@ def success_table(runs: Sequence[RunView]) -> str:
             if t is None:
                 cells.append('<td class="num">n/a</td>')
                 continue
-            ratio = "" if t.normalised is None else f" · {t.normalised:.2f}×"
+            notes = [f"{len(t.per_seed)} seeds", f"{t.num_trials} trials"]
+            notes += [] if t.normalised is None else [f"{t.normalised:.2f}×"]
+            sub = " · ".join(f'<span class="nw">{n}</span>' for n in notes)
             cells.append(
-                f'<td class="num">{_pct(t.mean)} [{_pct(t.min)}, {_pct(t.max)}]'
-                f'<span class="sub">{len(t.per_seed)} seeds · {t.num_trials} trials{ratio}</span></td>'
+                f'<td class="num">{_mean_range(t.mean, t.min, t.max)}<span class="sub">{sub}</span></td>'
             )
-        rows.append(f"<tr><td>{escape(task)}</td>{''.join(cells)}</tr>")
+        name = escape(task).replace("/", "/<wbr>")
+        rows.append(f"<tr><td>{name}</td>{''.join(cells)}</tr>")
     envs = list(dict.fromkeys(t.split("/")[0] for t in tasks))
     for env in envs:
         cells = "".join(f'<td class="num">{_pct(r.summary.env_means.get(env))}</td>' for r in runs)
         rows.append(f"<tr class=total><td>{escape(env)} (mean of tasks)</td>{cells}</tr>")
     cells = "".join(
-        f'<td class="num">{_pct(r.summary.mean)} [{_pct(r.summary.min)}, {_pct(r.summary.max)}]</td>'
+        f'<td class="num">{_mean_range(r.summary.mean, r.summary.min, r.summary.max)}</td>'
         for r in runs
     )
     rows.append(f"<tr class=total><td>all tasks</td>{cells}</tr>")
     return (
-        '<table class="success"><thead><tr><th>task</th>'
-        f"{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
+        '<div class="wide"><table class="success"><thead><tr><th>task</th>'
+        f"{head}</tr></thead><tbody>{''.join(rows)}</tbody></table></div>"
         '<p class="sub">success % mean over control runs (seeds) [min, max]; '
         "× = the task's ratio to the oracle's mean</p>"
     )
@@ -240,4 +249,6 @@ img{image-rendering:pixelated;display:block;max-width:100%} img.plan{margin-top:
 .warn{color:#a40} .scatters{display:flex;flex-wrap:wrap;gap:8px} ul.notes{color:#555}
 code{background:#f3f3f3;padding:0 3px} .wide{max-width:100%;overflow-x:auto}
 table.runs{table-layout:auto;width:100%} table.runs code{word-break:break-all}
+figure.chart svg,figure.scatter svg{max-width:100%;height:auto}
+table.success{font-size:.9em} table.success td.num{white-space:normal} .nw{white-space:nowrap}
 """

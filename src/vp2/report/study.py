@@ -233,7 +233,7 @@ class StudyResult:
         """The tables, correlations and scatter plots as an HTML fragment (for the report)."""
         parts = []
         for scope in self.scopes:
-            parts.append(f"<h3>{escape(scope)}</h3><table><thead><tr><th>model</th>")
+            parts.append(f'<h3>{escape(scope)}</h3><div class="wide"><table><thead><tr><th>model</th>')
             parts += [
                 f"<th>{escape(m.label)} {'↓' if m.lower_is_better else '↑'}</th>"
                 for m in STUDY_METRICS
@@ -247,19 +247,19 @@ class StudyResult:
                     f"<tr><td>{escape(r.label)}</td>{cells}"
                     f'<td class="num">{_success(r)}</td><td class="num">{r.num_trials}</td></tr>'
                 )
-            parts.append("</tbody></table>")
+            parts.append("</tbody></table></div>")
         parts.append(
             "<h3>Rank correlation with success (across models)</h3><p>A metric that ranks "
             "models as control does correlates positively with success where higher is better "
             "(SSIM) and negatively where lower is better (FVD, LPIPS).</p>"
-            "<table><thead><tr><th>scope</th><th>metric</th><th>models</th>"
+            '<div class="wide"><table><thead><tr><th>scope</th><th>metric</th><th>models</th>'
             "<th>Spearman ρ (p)</th><th>Kendall τ-b (p)</th><th>agreeing sign</th>"
             "<th>note</th></tr></thead><tbody>"
         )
         for c in self.correlations:
             cells = zip(_CORRELATION_TD, _correlation_cells(c), strict=True)
             parts.append("<tr>" + "".join(f"<td{td}>{escape(x)}</td>" for td, x in cells) + "</tr>")
-        parts.append("</tbody></table>")
+        parts.append("</tbody></table></div>")
         svgs = self.scatter_svgs()
         if svgs:
             parts.append('<div class="scatters">')
