@@ -4,12 +4,14 @@ no oversized files.
 Stages (``docs/architecture.md``): envs -> data -> models -> classifiers -> planning -> training
 -> benchmark -> metrics / report -> cli. ``vp2.utils``, ``vp2.spec`` and ``vp2._quiet`` are shared
 by every stage and import no stage. Imports inside functions count: a lazy import is still a
-dependency.
+dependency, and so is an import named as a string (``"vp2.models.simulator:SimulatorModel"`` handed
+to ``importlib``, a registry of factory paths).
 """
 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -31,6 +33,8 @@ STAGES: dict[str, int] = {
 }
 SHARED = {"utils", "spec", "_quiet"}
 MAX_LINES = 500
+#: A string literal that names a vp2 module, optionally with ``:attribute``: an import by name.
+NAMED_IMPORT = re.compile(r"vp2(\.[A-Za-z_]\w*)+(:[A-Za-z_][\w.]*)?")
 
 
 def module_name(path: Path) -> str:
@@ -57,6 +61,10 @@ def imported_modules(name: str, path: Path, known: set[str]) -> set[str]:
                 base = ".".join([*anchor, *([base] if base else [])])
             targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in known else base
                        for a in node.names]
+        elif (isinstance(node, ast.Constant) and isinstance(node.value, str)
+              and NAMED_IMPORT.fullmatch(node.value)):
+            module, _, attr = node.value.partition(":")
+            targets = [f"{module}.{attr.split('.')[0]}" if attr else module]
         else:
             continue
         for target in targets:
@@ -152,6 +160,17 @@ def test_the_checker_sees_a_backward_import(tmp_path):
     g = tmp_path / "__init__.py"
     g.write_text("from . import base\nfrom .base import thing\n")
     assert imported_modules("vp2.envs", g, known) == {"vp2.envs.base"}
+
+
+def test_the_checker_sees_an_import_named_as_a_string(tmp_path):
+    """A module or factory path in a string (a registry, ``importlib.import_module``) is an
+    import; prose that mentions a module is not."""
+    known = {"vp2.envs.base", "vp2.benchmark.runner", "vp2.envs", "vp2.benchmark"}
+    f = tmp_path / "base.py"
+    f.write_text('FACTORIES = {"x": "vp2.benchmark.runner:run_benchmark"}\n'
+                 'import importlib\nimportlib.import_module("vp2.benchmark")\n'
+                 '"""See vp2.benchmark.runner for the loop."""\n')
+    assert imported_modules("vp2.envs.base", f, known) == {"vp2.benchmark.runner", "vp2.benchmark"}
 
 
 @pytest.mark.parametrize("mod", ["vp2.benchmark.config", "vp2.benchmark.model_spec"])

@@ -28,6 +28,7 @@ RULES: list[tuple[str, str, object]] = [
     ("NUM_FUTURE", r"num_future\w*|horizon", spec.NUM_FUTURE),
     ("MIN_SEEDS", r"\w*min_seeds\w*", spec.MIN_SEEDS),
     ("ROBODESK_PIXEL_WEIGHT", r"\w*pixel_weight\w*", spec.ROBODESK_PIXEL_WEIGHT),
+    ("TABLETOP_PIXEL_WEIGHT", r"\w*pixel_weight\w*", spec.TABLETOP_PIXEL_WEIGHT),
     ("ROBODESK_CLASSIFIER_WEIGHT", r"\w*classifier_weight\w*", spec.ROBODESK_CLASSIFIER_WEIGHT),
 ]
 SIGMA_LITERALS = {env: tuple(s) for env, s in spec.SIGMA.items()}

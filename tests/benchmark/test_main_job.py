@@ -46,7 +46,7 @@ def test_shipped_model_runs_only_on_its_env(tmp_path, monkeypatch):
     runs = main_job._run_configs(  # noqa: SLF001
         _config(tmp_path, agents=("model", "random"), tasks=("robodesk/push_red", "tabletop")))
     assert runs["svg_prime"].tasks == ("robodesk/push_red",)
-    assert runs["svg_prime"].num_samples == 50
+    assert runs["svg_prime"].planner.num_samples == 50
     assert runs["random actions"].tasks == ("robodesk/push_red", "tabletop")
     runs = main_job._run_configs(MainJobConfig(agents=("model",)))  # noqa: SLF001
     assert runs["svg_prime"].tasks == ("robodesk",)

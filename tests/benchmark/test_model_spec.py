@@ -1,13 +1,18 @@
-"""Loading models from ``package.module:factory`` specs and YAML files with ``_target_``."""
+"""Model specs: parsing the four forms of ``--model``, checking them before any trial, and
+loading models from ``package.module:factory`` specs and YAML files with ``_target_``."""
 
 from __future__ import annotations
 
+import dataclasses
+import random
 import sys
+from pathlib import Path
 
 import pytest
 import torch
 
 from vp2.benchmark.model_spec import (
+    ModelSpec,
     PluginError,
     check_spec,
     describe_spec,
@@ -16,6 +21,7 @@ from vp2.benchmark.model_spec import (
     model_identity,
     resolve_model,
 )
+from vp2.models import CheckpointSpec, build_model, model_entry, write_model_checkpoint
 from vp2.models.baselines import RepeatLastFrame
 from vp2.models.contract import CheckedPredictor, unwrap
 from vp2.models.simulator import SimulatorModel
@@ -107,11 +113,96 @@ def test_a_module_in_the_current_directory_resolves(tmp_path, monkeypatch):
         ("vp2.models.baselines:NoSuchModel", "has no attribute 'NoSuchModel'"),
         ("just_a_name", "expected a built-in name"),
         ("svg_prime:/nonexistent/run", "no checkpoint at"),
+        ("", "expected a built-in name"),
+        ("svg_prime:", "expected NAME:CHECKPOINT"),
+        ("svg_prim:runs/x", r"NAME:CHECKPOINT \(NAME: fitvid, .*svg_prime\)"),
+        (":factory", "expected a built-in name"),
+        ("pkg.mod:", "expected a built-in name"),
+        ("pkg/mod:make", "expected a built-in name"),
     ],
 )
 def test_bad_specs_fail_with_the_reason(spec, match):
     with pytest.raises(PluginError, match=match):
         check_spec(spec)
+
+
+@pytest.mark.parametrize(
+    ("text", "kind", "target", "path"),
+    [
+        ("simulator", "builtin", "vp2.models.simulator:SimulatorModel", None),
+        ("oracle", "builtin", "vp2.models.simulator:SimulatorModel", None),
+        ("repeat_last_frame", "builtin", "vp2.models.baselines:RepeatLastFrame", None),
+        ("svg_prime:runs/a:b", "checkpoint", None, Path("runs/a:b")),
+        ("fitvid:/abs/step_00000004.pt", "checkpoint", None, Path("/abs/step_00000004.pt")),
+        ("pkg.mod:make", "factory", "pkg.mod:make", None),
+        ("mymodule:Maker.build", "factory", "mymodule:Maker.build", None),
+        ("configs/model.yaml", "yaml", None, Path("configs/model.yaml")),
+        ("svg_prime:m.yml", "yaml", None, Path("svg_prime:m.yml")),  # a file name wins
+    ],
+)
+def test_parse_the_four_forms(text, kind, target, path):
+    spec = ModelSpec.parse(text)
+    assert (spec.text, spec.kind, spec.target, spec.path) == (text, kind, target, path)
+    assert str(spec) == text and describe_spec(text) == describe_spec(spec) == kind
+    if kind == "checkpoint":
+        name = text.partition(":")[0]
+        assert spec.checkpoint == CheckpointSpec(name, path)
+    else:
+        assert spec.checkpoint is None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        spec.kind = "yaml"  # type: ignore[misc]
+
+
+@pytest.fixture(scope="module")
+def fitvid_run(tmp_path_factory):
+    """A run directory with a checkpoint of a tiny FitVid."""
+    run = tmp_path_factory.mktemp("fitvid_run")
+    model = build_model("fitvid", "mini", action_dim=4, image_size=32, seed=1)
+    write_model_checkpoint(run / "checkpoints" / "step_00000002.pt", {"model": model_entry(model)})
+    return run
+
+
+def _corrupt(path: Path, run: Path) -> None:
+    path.write_bytes(random.Random(0).randbytes(4096))
+
+
+def _truncated(path: Path, run: Path) -> None:
+    good = run / "checkpoints" / "step_00000002.pt"
+    path.write_bytes(good.read_bytes()[:1000])
+
+
+def _other_family(path: Path, run: Path) -> None:
+    path.write_bytes((run / "checkpoints" / "step_00000002.pt").read_bytes())
+
+
+@pytest.mark.parametrize(
+    ("make", "what"),
+    [
+        (_corrupt, "is not a vp2 checkpoint (not a readable PyTorch file: UnpicklingError"),
+        (_truncated, "is not a vp2 checkpoint (not a readable PyTorch file: failed reading zip"),
+        (_other_family, "holds a 'fitvid' model, not 'svg_prime'"),
+    ],
+    ids=["corrupt", "truncated", "other_family"],
+)
+def test_a_bad_checkpoint_is_one_line_naming_the_file(make, what, fitvid_run, tmp_path):
+    path = tmp_path / "model.pt"
+    make(path, fitvid_run)
+    spec = f"svg_prime:{path}"
+    with pytest.raises(PluginError) as info:
+        check_spec(spec)
+    assert str(info.value).startswith(f"model {spec!r}: {path} {what}")
+    assert "\n" not in str(info.value) and "weights_only" not in str(info.value)
+    with pytest.raises(PluginError) as built:  # the same error where a worker builds it
+        resolve_model(spec, {}, env="robodesk", action_dim=5, device="cpu")
+    assert str(built.value) == str(info.value)
+
+
+def test_a_checkpoint_spec_checks_and_loads(fitvid_run):
+    check_spec(f"fitvid:{fitvid_run}")
+    model = resolve_model(f"fitvid:{fitvid_run}", {}, env="tabletop", action_dim=4, device="cpu")
+    assert model.name == "fitvid" and not model.training
+    with pytest.raises(PluginError, match="a checkpoint is loaded by resolve_model"):
+        load_plugin(f"fitvid:{fitvid_run}")
 
 
 def test_yaml_without_target_is_rejected(tmp_path):

@@ -16,6 +16,7 @@ from tests.benchmark import tiny_suite_path
 from vp2._quiet import ROBOSUITE_NOTICES
 from vp2.benchmark import RunConfig, run_benchmark
 from vp2.benchmark.results import read_trials
+from vp2.planning.config import PlannerConfig
 
 REPO = Path(__file__).resolve().parents[2]
 #: A cheap run: 1 tabletop instance, 1 seed, 2 control steps, 4 planner samples.
@@ -45,7 +46,8 @@ def model_dir(tmp_path, monkeypatch):
 
 def _cheap(**overrides) -> dict:
     kwargs = dict(suite=str(tiny_suite_path()), tasks=("tabletop/push_sphere",), num_instances=1,
-                  seeds=(0,), num_steps=2, num_samples=4, save_gifs=False, progress=False)
+                  seeds=(0,), num_steps=2, planner=PlannerConfig(num_samples=4), save_gifs=False,
+                  progress=False)
     return {**kwargs, **overrides}
 
 
@@ -80,5 +82,5 @@ def test_readme_model_through_its_yaml_file_and_the_python_api(model_dir):
     assert result.num_run == 1 and result.num_errors == 0
     # The toy model is differentiable in the actions: gradient-based planners accept it.
     grad = run_benchmark(RunConfig(model="mymodule:make_model", out="runs/gd",
-                                   **_cheap(optimizer="cem_gd")))
+                                   **_cheap(planner=PlannerConfig("cem_gd", num_samples=4))))
     assert grad.num_errors == 0

@@ -20,8 +20,9 @@ from tests.benchmark import tiny_suite_path
 from vp2.benchmark.config import RunConfig
 from vp2.benchmark.model_spec import parse_model_args
 from vp2.benchmark.results import read_trials, trial_key
-from vp2.benchmark.run_dir import read_config
+from vp2.benchmark.run_dir import RunDir, read_config
 from vp2.benchmark.runner import ModelFailure, run_benchmark
+from vp2.planning.planner import PlannerConfig
 
 REPO = Path(__file__).resolve().parents[2]
 STEPS = 3
@@ -34,7 +35,7 @@ def _config(tmp_path: Path, name: str, **overrides) -> RunConfig:
         suite=str(tiny_suite_path()),
         seeds=(0, 1),
         num_steps=STEPS,
-        num_samples=8,
+        planner=PlannerConfig(num_samples=8),
         progress=False,
     )
     kwargs.update(overrides)
@@ -88,22 +89,23 @@ def test_existing_run_needs_resume_and_the_same_protocol(reference, tmp_path):
     with pytest.raises(FileExistsError, match="resume"):
         run_benchmark(cfg)
     with pytest.raises(ValueError, match="num_samples: 8 -> 16"):
-        run_benchmark(replace(cfg, resume=True, num_samples=16))
+        run_benchmark(replace(cfg, resume=True, planner=PlannerConfig(num_samples=16)))
+    with pytest.raises(ValueError, match="optimizer: 'mppi' -> 'cem'"):
+        run_benchmark(replace(cfg, resume=True, planner=PlannerConfig("cem", num_samples=8)))
     again = run_benchmark(replace(cfg, resume=True))
     assert again.num_run == 0 and again.num_skipped == 6 and len(again.records) == 6
 
 
 def test_a_run_that_stopped_before_any_trial_does_not_block_its_directory(tmp_path):
-    from vp2.benchmark.run_dir import prepare_run_dir
-
     cfg = _config(tmp_path, "stopped")
-    run_dir = prepare_run_dir(cfg)  # what a run writes before its first trial
+    run_dir = RunDir.prepare(cfg).path  # what a run writes before its first trial
     assert (run_dir / "config.yaml").exists() and not (run_dir / "trials.jsonl").exists()
-    prepare_run_dir(replace(cfg, num_samples=16))  # no --resume needed, settings may change
-    assert read_config(run_dir).num_samples == 16
+    # no --resume needed, settings may change
+    RunDir.prepare(replace(cfg, planner=PlannerConfig(num_samples=16)))
+    assert read_config(run_dir).planner.num_samples == 16
     (run_dir / "trials.jsonl").write_text(json.dumps({"task": "t", "seed": 0}) + "\n")
     with pytest.raises(FileExistsError, match="1 recorded trial\\(s\\): add --resume"):
-        prepare_run_dir(cfg)
+        RunDir.prepare(cfg)
 
 
 def test_resume_after_sigkill_runs_every_trial_exactly_once(reference, tmp_path):
@@ -279,7 +281,7 @@ def test_a_model_that_does_not_fit_the_run_is_refused_before_any_trial(tmp_path)
     )
     with pytest.raises(ModelFailure, match=r"action_dim 5, but the tabletop tasks have 4-D"):
         run_benchmark(wrong_dim)
-    no_grad = _config(tmp_path, "grad", optimizer="lbfgs")
+    no_grad = _config(tmp_path, "grad", planner=PlannerConfig("lbfgs"))
     with pytest.raises(ModelFailure, match="lbfgs optimizer needs gradients .* repeat_last_frame"):
         run_benchmark(no_grad)
     assert read_trials(wrong_dim.out) == [] and read_trials(no_grad.out) == []
@@ -299,7 +301,7 @@ def test_a_broken_model_stops_the_run_and_resume_continues_after_the_fix(tmp_pat
         run_benchmark(more)
     message = str(info.value)
     assert "nan_until_fixed" in message and "predict output: expected finite values" in message
-    assert 'docs/benchmark.md, "Plugins"' in message and "--resume" in message
+    assert 'docs/evaluation.md, "Plugins"' in message and "--resume" in message
     assert [trial_key(r) for r in read_trials(cfg.out)] == [("tabletop/push_sphere", 0, 0)]
     fixed.touch()
     result = run_benchmark(more)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from tests.models.synthetic import write_moving_square_dataset
-from vp2.cli.train import config_from_args, configure_parser, run_from_args
+from vp2.cli.train import config_from_args, configure_parser, default_out_dir, run_from_args
 
 
 @pytest.fixture(scope="module")
@@ -130,3 +130,32 @@ def test_help_names_only_registered_presets():
     assert {m for m, _ in named} == set(MODELS)
     for model, preset in named:
         assert preset in MODELS[model].presets, (model, preset)
+
+
+def test_the_generated_parser_gives_the_trainconfig_of_the_hand_written_one(dataset, tmp_path):
+    """Every field, as the hand-written flag-to-field code set it (before the flags were
+    generated from TrainConfig's fields)."""
+    from vp2.training.config import TrainConfig
+
+    config = config_from_args(
+        _tiny(
+            dataset, tmp_path / "o",
+            "--preset", "mini", "--model-arg", "beta=1e-3", "rnn_size=16", "--tasks",
+            "synthetic/moving_square", "--num-trajectories", "4", "--steps", "7",
+            "--max-minutes", "2.5", "--optimizer", "adamw", "--weight-decay", "0.01",
+            "--grad-clip", "5", "--seed", "3", "--perceptual", "lpips", "--perceptual-weight",
+            "10", "--resume", "--device", "cpu", "--amp", "--eval-interval", "3",
+            "--ckpt-interval", "2", "--keep-checkpoints", "5",
+        )
+    )  # fmt: skip
+    assert config == TrainConfig(
+        model="fitvid", dataset=str(dataset), out_dir=str(tmp_path / "o"), preset="mini",
+        model_overrides={"beta": "1e-3", "rnn_size": "16"}, tasks=["synthetic/moving_square"],
+        max_trajectories=4, steps=7, max_minutes=2.5, batch_size=4, lr=1e-3, optimizer="adamw",
+        weight_decay=0.01, grad_clip=5.0, seed=3, perceptual="lpips", perceptual_weight=10.0,
+        eval_interval=3, eval_batches=1, ckpt_interval=2, keep_checkpoints=5, log_interval=1,
+        workers=0, device="cpu", amp=True, tensorboard=False, progress=False, resume=True,
+    )  # fmt: skip
+    default = config_from_args(_parse("--model", "svg_prime", "--data", str(dataset)))
+    assert default == TrainConfig(model="svg_prime", dataset=str(dataset),
+                                  out_dir=default_out_dir(default).as_posix())

@@ -19,7 +19,7 @@ from vp2.data.policies.robodesk import (
 from vp2.envs.robodesk import TASKS, RoboDeskEnv
 
 # Initial-state seeds on which the noise-free policy succeeds (the success rates over many
-# seeds are measured by benchmarks/robodesk_policies.py, see docs/robodesk.md).
+# seeds are measured by benchmarks/studies/robodesk_policies.py, see docs/measurements.md).
 SOLVED_SEEDS = {
     "push_red": (1, 4),
     "push_green": (1,),

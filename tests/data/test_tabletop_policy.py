@@ -79,7 +79,7 @@ def test_noise_spares_the_gripper(env):
 
 
 # Seeds whose noise-free push succeeds (a regression check; the rate is measured by the slow
-# test and by benchmarks/bench_tabletop.py).
+# test and by benchmarks/speed/bench_tabletop.py).
 @pytest.mark.parametrize("obj", range(len(OBJECT_NAMES)))
 def test_noise_free_push_succeeds(env, obj):
     for seed in (0, 3):

@@ -297,7 +297,7 @@ def _desk_xml():
 
 
 def test_dynamics_match_the_robodesk_package_bit_for_bit():
-    """A short version of benchmarks/robodesk_equivalence.py: same state, same actions."""
+    """A short version of benchmarks/fidelity/robodesk_equivalence.py: same state, same actions."""
     robodesk = pytest.importorskip("robodesk")
     package = robodesk.RoboDesk(task="push_red", action_repeat=50)
     package._get_obs = lambda: None  # its renderer is the bottleneck and not compared here

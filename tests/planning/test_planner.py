@@ -63,3 +63,12 @@ def test_robodesk_cost_uses_the_registered_classifier():
     assert build_cost("robodesk/push_red", goal, "pixel_only", registry)[1] == "pixel_only"
     with pytest.raises(ValueError, match="no success classifier"):
         build_cost("robodesk/push_blue", goal, "spec", registry)
+
+
+def test_the_cost_choice_lives_with_the_costs():
+    """``build_cost`` and its types moved to ``costs.py``; the old import paths still work."""
+    import vp2.planning
+    from vp2.planning import costs, planner
+
+    for name in ("build_cost", "COST_MODES", "CostKind", "CostMode"):
+        assert getattr(planner, name) is getattr(costs, name) is getattr(vp2.planning, name)

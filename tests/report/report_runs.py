@@ -20,6 +20,7 @@ import yaml
 from tests.benchmark import tiny_suite_path
 from vp2.benchmark.config import RunConfig
 from vp2.benchmark.runner import run_benchmark
+from vp2.planning.config import PlannerConfig
 from vp2.report.page import write_run_report
 
 TASK = "tabletop/push_sphere"
@@ -77,7 +78,8 @@ def write_handmade_run(
 def small_runs() -> dict[str, Path]:
     """The three run directories described in the module docstring."""
     root = Path(tempfile.mkdtemp(prefix="vp2-report-runs-"))
-    common = dict(suite=str(tiny_suite_path()), num_steps=3, num_samples=8, progress=False)
+    common = dict(suite=str(tiny_suite_path()), num_steps=3, planner=PlannerConfig(num_samples=8),
+                  progress=False)
     run_benchmark(
         RunConfig(
             model="repeat_last_frame",

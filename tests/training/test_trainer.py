@@ -11,6 +11,7 @@ from PIL import Image
 from tests.models.synthetic import write_moving_square_dataset
 from vp2.models import FitVid, load_model, load_model_spec
 from vp2.training import StepBatchSampler, TrainConfig, train, trainer
+from vp2.training.checkpoint import run_payload
 
 # Tiny models so that a training step takes milliseconds on a CPU.
 TINY = {
@@ -86,6 +87,19 @@ def test_train_writes_a_complete_run(dataset, tmp_path):
 
     model = load_model(out, device="cpu")
     assert isinstance(model, FitVid) and not model.training
+    # Its layout is the one run_payload makes (the model entry's: vp2.models.checkpoint).
+    layout = run_payload(
+        model,
+        step=4,
+        optimizer=torch.optim.Adam(model.parameters()),
+        scaler=torch.amp.GradScaler("cpu", enabled=False),
+        noise=torch.Generator(),
+        train_config={},
+        dataset={},
+        metrics={},
+        train_seconds=0.0,
+    )
+    assert list(payload) == ["format", *layout] and list(payload["model"]) == list(layout["model"])
     # The newest checkpoint's weights, exactly.
     loaded = model.state_dict()
     for key, value in payload["model"]["state_dict"].items():
@@ -184,13 +198,13 @@ def test_step_batch_sampler_is_a_function_of_seed_and_step():
 
 @pytest.mark.parametrize("half", [True, False])
 def test_exported_checkpoint_predicts_like_the_training_one(dataset, tmp_path, half):
-    from vp2.training.export import export_checkpoint
+    from vp2.training.export import EXPORT_KEYS, export_checkpoint
 
     out = tmp_path / "run"
     train(_config(dataset, out, model="svg_prime", steps=2))
     path = export_checkpoint(out, tmp_path / "model.pt", half=half)
     payload = torch.load(path, weights_only=True)
-    assert "optimizer" not in payload and "rng" not in payload and payload["step"] == 2
+    assert list(payload) == ["format", *EXPORT_KEYS, "exported"] and payload["step"] == 2
     assert payload["exported"] == {"half": half, "from_step": 2}
     dtypes = {v.dtype for v in payload["model"]["state_dict"].values() if v.is_floating_point()}
     assert dtypes == ({torch.float16} if half else {torch.float32})

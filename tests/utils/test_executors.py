@@ -30,6 +30,7 @@ from vp2.benchmark.results import read_trials, trial_key
 from vp2.benchmark.runner import run_benchmark
 from vp2.data import storage
 from vp2.data.collect import CollectionConfig, collect
+from vp2.planning.config import PlannerConfig
 from vp2.utils.executors import LiveQueue, LocalExecutor, RayExecutor, WorkerLost, make_executor
 
 ray = pytest.importorskip("ray")
@@ -270,7 +271,7 @@ def _outcomes(records):
 def _local_reference(out: Path, seeds: tuple[int, ...], steps: int = 3):
     return run_benchmark(RunConfig(
         model="repeat_last_frame", out=str(out), suite=str(tiny_suite_path()), seeds=seeds,
-        num_steps=steps, num_samples=8, save_gifs=False, progress=False,
+        num_steps=steps, planner=PlannerConfig(num_samples=8), save_gifs=False, progress=False,
     ))
 
 

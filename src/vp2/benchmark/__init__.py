@@ -2,11 +2,13 @@
 
 ==================  ==========================================================================
 trial.py            ControlTrial: one agent on one task instance for 15 steps
-config.py           RunConfig: one field per ``vp2 run`` flag (no torch to read it)
+config.py           RunConfig: one field per ``vp2 run`` flag, the planner's nested
+                    (PlannerConfig); importing it does not load torch
 model_spec.py       the model to benchmark from ``package.module:factory``, a YAML file or a
                     checkpoint (resolve_model), and ``--model-arg`` (parse_model_args)
 runner.py           run_benchmark: model × tasks × instances × seeds, resumable, parallel
-run_dir.py          a run directory: config.yaml, summaries, the checks of a resume
+run_dir.py          RunDir, a run directory: config.yaml, trials.jsonl, summaries, the
+                    trials its config covers, the checks of a resume
 worker.py           what runs a trial in a worker process (or Ray actor) and its record
 gifs.py             the GIFs of a trial
 results.py          reading records, success rates over seeds, oracle normalisation
@@ -19,7 +21,7 @@ The planning agent lives in :mod:`vp2.planning`, the RoboDesk success classifier
 :mod:`vp2.classifiers`, the HTML report in :mod:`vp2.report`. The names below are imported on
 first use, so importing one module of the package does not load the others (or torch).
 
-See ``docs/benchmark.md``.
+See ``docs/evaluation.md``.
 """
 
 import importlib
@@ -35,7 +37,7 @@ _LAZY_MODULES: dict[str, list[str]] = {
         "Summary", "TaskSummary", "TrialLog", "format_summary", "read_trials", "summarize",
         "task_success",
     ],
-    "vp2.benchmark.run_dir": ["read_config"],
+    "vp2.benchmark.run_dir": ["RunDir", "read_config"],
     "vp2.benchmark.runner": ["ModelFailure", "RunResult", "run_benchmark", "select_instances"],
     "vp2.benchmark.trial": ["ControlTrial", "TrialResult", "trial_seed"],
     "vp2.classifiers.registry": ["CLASSIFIERS", "ClassifierRegistry"],

@@ -1,37 +1,59 @@
 """The configuration of a benchmark run: :class:`RunConfig`, one field per ``vp2 run`` flag.
 
-Reading a run's configuration (``config.yaml``, :func:`vp2.benchmark.run_dir.read_config`)
-does not load torch: the planner's names are imported only to validate a config or build its
-planner settings.
+The planner's settings are one nested :class:`~vp2.planning.config.PlannerConfig`
+(``RunConfig.planner``), and ``config.yaml`` stores them nested (``planner:``);
+:meth:`RunConfig.from_dict` also reads the flat form of run directories written before
+(``optimizer``, ``num_samples``, ``gamma``, ``num_iterations`` beside the other fields).
+
+Making a ``RunConfig`` and reading a run directory's config does not load torch
+(:class:`~vp2.planning.config.PlannerConfig` is plain data); validating one builds the
+planner's optimizers, which does.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any
+from collections.abc import Mapping
+from typing import Any
 
 from vp2 import spec
 from vp2.envs import ENV_TASKS, split_name
+from vp2.planning.config import PlannerConfig
 from vp2.utils.executors.base import EXECUTORS
 
-if TYPE_CHECKING:
-    from vp2.planning.planner import PlannerConfig
-
 AGENTS: tuple[str, ...] = ("planning", "random")
-#: Fields of :class:`RunConfig` that change what a trial does. A resumed run must keep them;
-#: the others (which trials, how many processes, where) may change between sessions.
+#: Fields of :class:`RunConfig` that change what a trial does (``planner``: every field of it).
+#: A resumed run must keep them; the others (which trials, how many processes, where) may
+#: change between sessions.
 PROTOCOL_FIELDS: tuple[str, ...] = (
     "model",
     "model_args",
     "agent",
     "suite",
-    "optimizer",
-    "num_samples",
-    "gamma",
-    "num_iterations",
+    "planner",
     "cost",
     "num_steps",
 )
+
+
+def flat_settings(data: Mapping[str, Any]) -> dict[str, Any]:
+    """A ``config`` mapping of ``config.yaml`` with the planner's fields beside the others (the
+    flat form, whichever form the file has), e.g. to show a run's settings."""
+    out = {k: v for k, v in data.items() if k != "planner"}
+    planner = data.get("planner")
+    if isinstance(planner, Mapping):
+        out.update(planner)
+    return out
+
+
+def planner_of(data: Mapping[str, Any]) -> PlannerConfig:
+    """The planner of a ``config`` mapping in either form; fields it lacks take their
+    defaults, keys that are no planner field are ignored."""
+    names = {f.name for f in dataclasses.fields(PlannerConfig)}
+    values = {k: v for k, v in flat_settings(data).items() if k in names}
+    if values.get("sigma") is not None:
+        values["sigma"] = tuple(values["sigma"])
+    return PlannerConfig(**values)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,14 +74,16 @@ class RunConfig:
         tasks: Task categories or environment names to run (``--tasks``); empty: every task
             of the suite.
         num_instances: First ``k`` instances of each task (``--num-instances``); ``None``:
-            all.
+            all. A task with fewer runs all it has, and the run says so.
         seeds: Control-run seeds (``--seeds``); SPEC §4 asks for at least 3.
-        optimizer: ``mppi`` (SPEC), ``cem``, ``cem_gd``, ``lbfgs`` (``--optimizer``).
-        num_samples: Planner samples per step (``--num-samples``); ``None``: SPEC (200,
-            800 for open_slide/open_drawer). Other values are for tests and ablations.
-        gamma: MPPI inverse temperature (``--gamma``).
-        num_iterations: Planner iterations per step (``--num-iterations``); ``None``: the
-            optimizer's default.
+        planner: The planning agents' optimizer settings
+            (:class:`~vp2.planning.config.PlannerConfig`): ``optimizer`` (``--optimizer``:
+            ``mppi`` (SPEC), ``cem``, ``cem_gd``, ``lbfgs``), ``num_samples`` (planner
+            samples per step, ``--num-samples``; ``None``: SPEC, 200, 800 for
+            open_slide/open_drawer; other values are for tests and ablations), ``gamma``
+            (MPPI inverse temperature, ``--gamma``), ``num_iterations`` (iterations per step,
+            ``--num-iterations``; ``None``: the optimizer's default); ``sigma`` and
+            ``options`` have no flag.
         cost: ``auto`` | ``spec`` | ``pixel_only`` (``--cost``), see
             :data:`vp2.planning.planner.CostMode`.
         num_steps: Control steps per trial (``--num-steps``); SPEC: 15. Fewer only for tests.
@@ -99,10 +123,7 @@ class RunConfig:
     tasks: tuple[str, ...] = ()
     num_instances: int | None = None
     seeds: tuple[int, ...] = tuple(range(spec.MIN_SEEDS))
-    optimizer: str = "mppi"
-    num_samples: int | None = None
-    gamma: float = spec.GAMMA
-    num_iterations: int | None = None
+    planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
     cost: str = "auto"
     num_steps: int = spec.NUM_CONTROL_STEPS
     stop_on_success: bool = False
@@ -127,9 +148,11 @@ class RunConfig:
 
         if self.agent not in AGENTS:
             raise ValueError(f"agent must be one of {AGENTS}, got {self.agent!r}")
-        if self.optimizer not in OPTIMIZERS:
+        if not isinstance(self.planner, PlannerConfig):
+            raise ValueError(f"planner must be a PlannerConfig, got {self.planner!r}")
+        if self.planner.optimizer not in OPTIMIZERS:
             raise ValueError(
-                f"optimizer must be one of {tuple(OPTIMIZERS)}, got {self.optimizer!r}"
+                f"optimizer must be one of {tuple(OPTIMIZERS)}, got {self.planner.optimizer!r}"
             )
         if self.cost not in COST_MODES:
             raise ValueError(f"cost must be one of {COST_MODES}, got {self.cost!r}")
@@ -158,54 +181,82 @@ class RunConfig:
             from vp2.planning.planner import build_optimizer
 
             for env, env_tasks in ENV_TASKS.items():
-                build_optimizer(f"{env}/{env_tasks[0]}", self.planner())
-
-    def planner(self) -> PlannerConfig:
-        """The planner settings of the run's planning agents."""
-        from vp2.planning.planner import PlannerConfig
-
-        return PlannerConfig(
-            optimizer=self.optimizer,
-            num_samples=self.num_samples,
-            gamma=self.gamma,
-            num_iterations=self.num_iterations,
-        )
+                build_optimizer(f"{env}/{env_tasks[0]}", self.planner)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data (tuples as lists), as written to ``config.yaml``."""
-        d = dataclasses.asdict(self)
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+        """Plain data (tuples as lists, ``planner`` a nested mapping), as written to
+        ``config.yaml``."""
+        d = _lists(dataclasses.asdict(self))
+        d["planner"] = _lists(d["planner"])
+        return d
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> RunConfig:
-        """Inverse of :meth:`to_dict`; unknown keys are an error."""
+    def from_dict(cls, data: Mapping[str, Any]) -> RunConfig:
+        """Inverse of :meth:`to_dict`; also reads the flat form (the planner's fields beside
+        the others) of run directories written before the planner was nested. Unknown keys
+        are an error."""
         names = {f.name for f in dataclasses.fields(cls)}
+        planner_names = {f.name for f in dataclasses.fields(PlannerConfig)}
+        data = dict(data)
+        nested = data.pop("planner", None) or {}
+        if isinstance(nested, PlannerConfig):
+            nested = dataclasses.asdict(nested)
+        if not isinstance(nested, Mapping):
+            raise ValueError(f"planner must be a mapping of PlannerConfig fields, got {nested!r}")
+        flat = {k: data.pop(k) for k in [k for k in data if k in planner_names and k not in names]}
         unknown = set(data) - names
         if unknown:
             raise ValueError(f"unknown RunConfig field(s) {sorted(unknown)}")
-        data = dict(data)
+        unknown = set(nested) - planner_names
+        if unknown:
+            raise ValueError(f"unknown PlannerConfig field(s) {sorted(unknown)}")
+        clash = sorted(k for k in flat if k in nested and flat[k] != nested[k])
+        if clash:
+            raise ValueError(f"planner field(s) {clash} given twice, flat and nested, differently")
+        planner = {**nested, **flat}
+        if planner.get("sigma") is not None:
+            planner["sigma"] = tuple(planner["sigma"])
         for key in ("tasks", "seeds"):
             if key in data:
                 data[key] = tuple(data[key])
-        return cls(**data)
+        return cls(**data, planner=PlannerConfig(**planner))
+
+    def protocol(self) -> dict[str, Any]:
+        """The settings a resumed run must keep (:data:`PROTOCOL_FIELDS`), the planner's
+        field by field (``{"model": ..., "optimizer": ..., "num_samples": ..., ...}``)."""
+        out: dict[str, Any] = {}
+        for name in PROTOCOL_FIELDS:
+            value = getattr(self, name)
+            if dataclasses.is_dataclass(value):
+                out.update((f.name, getattr(value, f.name)) for f in dataclasses.fields(value))
+            else:
+                out[name] = value
+        return out
 
     def deviations(self) -> list[str]:
         """How this run departs from the SPEC protocol (shown with the results)."""
         out = []
+        planner = self.planner
         if self.num_steps != spec.NUM_CONTROL_STEPS:
             out.append(f"num_steps={self.num_steps} (SPEC: {spec.NUM_CONTROL_STEPS})")
-        if self.num_samples is not None:
+        if planner.num_samples is not None:
             out.append(
-                f"num_samples={self.num_samples} (SPEC: {spec.NUM_SAMPLES}, "
+                f"num_samples={planner.num_samples} (SPEC: {spec.NUM_SAMPLES}, "
                 f"{spec.LARGE_NUM_SAMPLES} for open_slide/open_drawer)"
             )
         if self.agent == "planning":
-            if self.optimizer != "mppi":
-                out.append(f"optimizer={self.optimizer} (SPEC: mppi)")
-            if self.gamma != spec.GAMMA and self.optimizer == "mppi":
-                out.append(f"gamma={self.gamma} (SPEC: {spec.GAMMA})")
-            if self.num_iterations is not None:
-                out.append(f"num_iterations={self.num_iterations} (SPEC: {spec.NUM_ITERATIONS})")
+            if planner.optimizer != "mppi":
+                out.append(f"optimizer={planner.optimizer} (SPEC: mppi)")
+            if planner.gamma != spec.GAMMA and planner.optimizer == "mppi":
+                out.append(f"gamma={planner.gamma} (SPEC: {spec.GAMMA})")
+            if planner.num_iterations is not None:
+                out.append(
+                    f"num_iterations={planner.num_iterations} (SPEC: {spec.NUM_ITERATIONS})"
+                )
+            if planner.sigma is not None:
+                out.append(f"sigma={list(planner.sigma)} (SPEC: the environment's, vp2.spec.SIGMA)")
+            if planner.options:
+                out.append(f"optimizer options {planner.options} (SPEC: none)")
             if self.cost == "pixel_only":
                 out.append("cost=pixel_only (SPEC: RoboDesk uses its success classifier)")
         if len(self.seeds) < spec.MIN_SEEDS:
@@ -213,3 +264,7 @@ class RunConfig:
                 f"{len(self.seeds)} seed(s) (SPEC: at least {spec.MIN_SEEDS} control runs)"
             )
         return out
+
+
+def _lists(data: dict[str, Any]) -> dict[str, Any]:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in data.items()}

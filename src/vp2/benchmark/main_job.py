@@ -31,6 +31,7 @@ from vp2.benchmark.config import RunConfig
 from vp2.benchmark.results import Summary
 from vp2.benchmark.runner import RunResult, run_benchmark
 from vp2.benchmark.shipped_oracle import NO_SHIPPED_ORACLE, ShippedOracle, load_shipped_oracle
+from vp2.planning.planner import PlannerConfig
 from vp2.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
@@ -39,6 +40,8 @@ log = logging.getLogger(__name__)
 SHIPPED_MODEL = ("svg_prime", "svg_prime_tiny_robodesk.pt")
 #: The environment the shipped model was trained on (it runs only on that env's tasks).
 SHIPPED_MODEL_ENV = "robodesk"
+#: The agents the main job can run (all by default).
+AGENTS: tuple[str, ...] = ("model", "repeat_last_frame", "random")
 
 
 def shipped_model_spec() -> str | None:
@@ -72,7 +75,7 @@ class MainJobConfig:
     tasks: tuple[str, ...] = ()
     model_samples: int | None = spec.MAIN_JOB_NUM_SAMPLES
     workers: int = 2
-    agents: tuple[str, ...] = ("model", "repeat_last_frame", "random")
+    agents: tuple[str, ...] = AGENTS
     resume: bool = True
     suite: str | None = None
     num_steps: int = spec.NUM_CONTROL_STEPS
@@ -94,7 +97,8 @@ def _run_configs(config: MainJobConfig) -> dict[str, RunConfig]:
             log.info("no %s task selected: the shipped model is not run", env)
         else:
             runs[SHIPPED_MODEL[0]] = RunConfig(
-                model=spec, out=str(out / "model"), num_samples=config.model_samples,
+                model=spec, out=str(out / "model"),
+                planner=PlannerConfig(num_samples=config.model_samples),
                 **{**common, "tasks": model_tasks or (env,)})
     if "repeat_last_frame" in config.agents:
         runs["repeat_last_frame"] = RunConfig(

@@ -18,11 +18,15 @@ serves both environments (the runner builds one model per environment).
 
 Modules are imported with the current directory on the import path (appended, so an installed
 package of the same name wins), so ``--model mymodule:make_model`` works from the folder of
-``mymodule.py``. :func:`resolve_model` is the one place a spec becomes a model: it returns it
-wrapped by :func:`vp2.models.contract.checked` (checked calls, the interface's defaults).
+``mymodule.py``. :meth:`ModelSpec.parse` is the one place a string is read as a spec (the
+functions below take the string or the parsed :class:`ModelSpec`); :func:`check_spec` checks
+one before any trial (a checkpoint is read, safely: ``torch.load(weights_only=True)``);
+:func:`resolve_model` is the one place a spec becomes a model: it returns it wrapped by
+:func:`vp2.models.contract.checked` (checked calls, the interface's defaults).
 :func:`parse_model_args` reads the model arguments of the command line (``--model-arg``).
 
-Resolving a spec without building it (:func:`check_spec`) does not load torch.
+Importing this module does not load torch; parsing a spec with a colon does (it asks the model
+registry whether the part before the colon names a model).
 """
 
 from __future__ import annotations
@@ -31,10 +35,11 @@ import dataclasses
 import importlib
 import inspect
 import os
+import re
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import yaml
 
@@ -42,6 +47,8 @@ from vp2.utils.kv import parse_key_values, yaml_value
 
 if TYPE_CHECKING:
     import torch
+
+    from vp2.models.registry import CheckpointSpec
 
 #: Built-in model names and their factories.
 BUILTIN_MODELS: dict[str, str] = {
@@ -52,7 +59,7 @@ BUILTIN_MODELS: dict[str, str] = {
 #: Keyword arguments the runner supplies to factories that declare them.
 CONTEXT_ARGS: tuple[str, ...] = ("env", "action_dim", "device")
 #: Where the model interface is documented (named in the messages of model failures).
-MODEL_DOCS = 'docs/benchmark.md, "Plugins"'
+MODEL_DOCS = 'docs/evaluation.md, "Plugins"'
 
 
 class PluginError(ValueError):
@@ -128,50 +135,132 @@ def read_yaml_spec(path: str | Path) -> dict[str, Any]:
     return data
 
 
-def _is_yaml(spec: str) -> bool:
-    return spec.endswith((".yaml", ".yml"))
+#: ``package.module:factory`` (``factory`` may be dotted: a class attribute).
+_FACTORY = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
+SpecKind = Literal["builtin", "checkpoint", "factory", "yaml"]
 
 
-def _checkpoint_model_name(spec: str) -> str | None:
-    from vp2.models.registry import MODELS
+@dataclasses.dataclass(frozen=True)
+class ModelSpec:
+    """A ``--model`` string, parsed once (:meth:`parse`): which of the four forms it is and
+    what it names.
 
-    name, sep, _ = spec.partition(":")
-    return name if sep and name in MODELS else None
+    Attributes:
+        text: The string as given (what result records and messages show).
+        kind: ``builtin``, ``checkpoint`` (``NAME:CHECKPOINT``), ``factory``
+            (``package.module:factory``) or ``yaml``.
+        target: The factory to call, ``package.module:factory`` (``builtin``, ``factory``).
+        path: The model file (``yaml``) or the checkpoint file or run directory
+            (``checkpoint``).
+        checkpoint: The registered model and its checkpoint (``checkpoint``).
+    """
+
+    text: str
+    kind: SpecKind
+    target: str | None = None
+    path: Path | None = None
+    checkpoint: CheckpointSpec | None = None
+
+    def __str__(self) -> str:
+        return self.text
+
+    @classmethod
+    def parse(cls, text: str) -> ModelSpec:
+        """The spec a string is: a built-in name, else a ``.yaml``/``.yml`` file, else
+        ``NAME:CHECKPOINT`` if the part before the first colon is a registered model (which
+        imports the models, and torch), else ``package.module:factory``. Reads no file.
+
+        Raises:
+            PluginError: none of these forms.
+        """
+        if text in BUILTIN_MODELS:
+            return cls(text, "builtin", target=BUILTIN_MODELS[text])
+        if text.endswith((".yaml", ".yml")):
+            return cls(text, "yaml", path=Path(text))
+        names = "NAME:CHECKPOINT"
+        if ":" in text:
+            from vp2.models.registry import CheckpointSpec, model_names
+
+            try:
+                checkpoint = CheckpointSpec.match(text)
+            except ValueError as err:
+                raise PluginError(str(err)) from None
+            if checkpoint is not None:
+                return cls(text, "checkpoint", path=checkpoint.path, checkpoint=checkpoint)
+            if _FACTORY.fullmatch(text):
+                return cls(text, "factory", target=text)
+            names = f"NAME:CHECKPOINT (NAME: {', '.join(model_names())})"
+        raise PluginError(
+            f"model {text!r}: expected a built-in name ({', '.join(BUILTIN_MODELS)}), "
+            f"{names}, package.module:factory or a .yaml file"
+        )
+
+    def check(self) -> None:
+        """Resolves the spec without building the model (fails fast, before any trial): imports
+        the factory, reads the YAML file, or reads the checkpoint (``weights_only``, on the CPU)
+        and checks it holds the named model.
+
+        Raises:
+            PluginError: naming the spec and what is wrong, in one line.
+        """
+        if self.kind == "yaml":
+            resolve_target(str(read_yaml_spec(self.text)["_target_"]))
+        elif self.checkpoint is not None:
+            try:
+                self.checkpoint.check()
+            except (FileNotFoundError, ValueError) as err:
+                raise PluginError(f"model {self.text!r}: {err}") from err
+        else:
+            resolve_target(str(self.target))
+
+    def build(
+        self, args: Mapping[str, Any] | None = None, context: Mapping[str, Any] | None = None
+    ) -> Any:
+        """The object a built-in, factory or YAML spec names (see :func:`load_plugin`).
+
+        Raises:
+            PluginError: the spec cannot be resolved, or is a checkpoint (built by
+                :func:`resolve_model`).
+        """
+        args = dict(args or {})
+        if self.kind == "yaml":
+            data = read_yaml_spec(self.text)
+            target = str(data.pop("_target_"))
+            args = {**instantiate(data), **args}
+        elif self.kind == "checkpoint":
+            raise PluginError(f"model {self.text!r}: a checkpoint is loaded by resolve_model")
+        else:
+            target = str(self.target)
+        factory = resolve_target(target)
+        accepted = _accepted(factory)
+        for key, value in (context or {}).items():
+            if key in accepted and key not in args:
+                args[key] = value
+        return factory(**args)
 
 
-def describe_spec(spec: str) -> str:
-    """What kind of spec this is: ``builtin``, ``checkpoint``, ``yaml`` or ``factory``."""
-    if spec in BUILTIN_MODELS:
-        return "builtin"
-    if _is_yaml(spec):
-        return "yaml"
-    if _checkpoint_model_name(spec) is not None:
-        return "checkpoint"
-    return "factory"
+def _parsed(spec: str | ModelSpec) -> ModelSpec:
+    return spec if isinstance(spec, ModelSpec) else ModelSpec.parse(spec)
 
 
-def check_spec(spec: str) -> None:
-    """Resolves a spec without building anything (fails fast, before workers start).
+def describe_spec(spec: str | ModelSpec) -> str:
+    """What kind of spec this is: ``builtin``, ``checkpoint``, ``yaml`` or ``factory``.
 
     Raises:
-        PluginError: if the factory cannot be imported or the file read.
+        PluginError: none of these forms (see :meth:`ModelSpec.parse`).
     """
-    kind = describe_spec(spec)
-    if kind == "builtin":
-        resolve_target(BUILTIN_MODELS[spec])
-    elif kind == "yaml":
-        resolve_target(str(read_yaml_spec(spec)["_target_"]))
-    elif kind == "checkpoint":
-        _, path = spec.split(":", 1)
-        if not Path(path).exists():
-            raise PluginError(f"model {spec!r}: no checkpoint at {path}")
-    else:
-        if ":" not in spec:
-            raise PluginError(
-                f"model {spec!r}: expected a built-in name ({', '.join(BUILTIN_MODELS)}), "
-                "NAME:CHECKPOINT, package.module:factory or a .yaml file"
-            )
-        resolve_target(spec)
+    return _parsed(spec).kind
+
+
+def check_spec(spec: str | ModelSpec) -> None:
+    """Resolves a spec without building anything (fails fast, before workers start): see
+    :meth:`ModelSpec.check`.
+
+    Raises:
+        PluginError: if the factory cannot be imported, the file read, or the checkpoint is
+            missing or is not a vp2 checkpoint of the named model.
+    """
+    _parsed(spec).check()
 
 
 def _accepted(factory: Callable[..., Any]) -> set[str]:
@@ -187,7 +276,9 @@ def _accepted(factory: Callable[..., Any]) -> set[str]:
 
 
 def load_plugin(
-    spec: str, args: Mapping[str, Any] | None = None, context: Mapping[str, Any] | None = None
+    spec: str | ModelSpec,
+    args: Mapping[str, Any] | None = None,
+    context: Mapping[str, Any] | None = None,
 ) -> Any:
     """Builds the object a spec names.
 
@@ -201,28 +292,11 @@ def load_plugin(
     Raises:
         PluginError: if the spec cannot be resolved.
     """
-    args = dict(args or {})
-    if _is_yaml(spec):
-        data = read_yaml_spec(spec)
-        target = str(data.pop("_target_"))
-        args = {**instantiate(data), **args}
-    else:
-        target = BUILTIN_MODELS.get(spec, spec)
-        if ":" not in target:
-            raise PluginError(
-                f"model {spec!r}: expected a built-in name ({', '.join(BUILTIN_MODELS)}), "
-                "NAME:CHECKPOINT, package.module:factory or a .yaml file"
-            )
-    factory = resolve_target(target)
-    accepted = _accepted(factory)
-    for key, value in (context or {}).items():
-        if key in accepted and key not in args:
-            args[key] = value
-    return factory(**args)
+    return _parsed(spec).build(args, context)
 
 
 def resolve_model(
-    spec: str,
+    spec: str | ModelSpec,
     args: Mapping[str, Any] | None = None,
     *,
     env: str,
@@ -245,25 +319,25 @@ def resolve_model(
 
     from vp2.models.contract import checked
 
-    name = _checkpoint_model_name(spec) if not _is_yaml(spec) else None
-    if name is not None:
-        from vp2.models.registry import load_model_spec
-
+    parsed = _parsed(spec)
+    if parsed.checkpoint is not None:
         # Model arguments of a checkpoint override inference settings of its config
         # (e.g. MCVD's sampling_steps); load_model refuses architecture changes.
         try:
-            return load_model_spec(spec, device=device, overrides=dict(args or {}))
+            return parsed.checkpoint.load(device=device, overrides=dict(args or {}))
         except ValueError as err:
-            raise PluginError(f"model {spec!r}: {err}") from err
-    model = load_plugin(
-        spec, args, context={"env": env, "action_dim": action_dim, "device": str(device)}
+            raise PluginError(f"model {parsed.text!r}: {err}") from err
+    model = parsed.build(
+        args, context={"env": env, "action_dim": action_dim, "device": str(device)}
     )
     if isinstance(model, torch.nn.Module):
         model = model.to(device).eval()
     return checked(model) if check else model
 
 
-def model_identity(spec: str, args: Mapping[str, Any] | None, model: Any) -> dict[str, Any]:
+def model_identity(
+    spec: str | ModelSpec, args: Mapping[str, Any] | None, model: Any
+) -> dict[str, Any]:
     """JSON-able identity of a built model for result records."""
     import torch
 
@@ -273,7 +347,7 @@ def model_identity(spec: str, args: Mapping[str, Any] | None, model: Any) -> dic
     model = unwrap(model)
     cls = type(model)
     identity: dict[str, Any] = {
-        "spec": spec,
+        "spec": str(spec),
         "args": dict(args or {}),
         "name": name if isinstance(name, str) and name else cls.__name__,
         "class": f"{cls.__module__}.{cls.__qualname__}",

@@ -37,6 +37,13 @@ def trial_key(record: dict[str, Any]) -> TrialKey:
     return record["task"], int(record["instance"]), int(record["seed"])
 
 
+def trial_keys(instances: Iterable[Any], seeds: Sequence[int]) -> list[TrialKey]:
+    """The keys of task instances (``.task``, ``.index``) × seeds, seed-major: an interrupted
+    run has whole control runs finished first."""
+    instances = list(instances)
+    return [(inst.task, inst.index, seed) for seed in seeds for inst in instances]
+
+
 def is_ok(record: dict[str, Any]) -> bool:
     """Whether a record is a finished trial (not an error)."""
     return record.get("error") is None

@@ -16,15 +16,17 @@
    run (action size, gradients for ``cem_gd``/``lbfgs``) is refused before any trial;
 5. writes and returns the summary table of the trials its settings cover (records of other
    seeds or instances in the directory are named in a warning, not counted:
-   :func:`trials_of_run`; per task: mean success over seeds with min/max,
-   normalised by an oracle run if one is given, else by the shipped oracle,
+   :meth:`~vp2.benchmark.run_dir.RunDir.split_trials`; per task: mean success over seeds with
+   min/max, normalised by an oracle run if one is given, else by the shipped oracle,
    :mod:`vp2.benchmark.shipped_oracle`; an oracle run itself is not normalised), then calls
    the ``after_run`` hook with the run directory (``vp2 run`` and ``vp2 main`` pass the HTML
    report writer, :func:`vp2.report.page.write_run_report`).
 
 The pieces: :mod:`~vp2.benchmark.config` (the run's settings), :mod:`~vp2.benchmark.run_dir`
-(its files and the checks of a resume), :mod:`~vp2.benchmark.worker` (what runs a trial),
-:mod:`~vp2.benchmark.gifs`; this module is the driver loop.
+(:class:`~vp2.benchmark.run_dir.RunDir`: its files and the checks of a resume),
+:mod:`~vp2.benchmark.worker` (what runs a trial), :mod:`~vp2.benchmark.gifs`; this module is
+the driver loop. A ``--tasks`` environment or ``--num-instances`` beyond what the suite has
+runs what it has, with a warning (:func:`selection_notes`).
 
 Parallelism policy: trials are the unit of parallel work. With ``workers > 1`` every trial
 process plans serially, and a model that runs its own process pool (the simulator oracle's
@@ -57,24 +59,8 @@ from tqdm.auto import tqdm
 from vp2.benchmark.config import RunConfig
 from vp2.benchmark.gifs import write_trial_gifs
 from vp2.benchmark.model_spec import MODEL_DOCS, check_spec
-from vp2.benchmark.results import (
-    TRIALS_FILE,
-    Summary,
-    TrialKey,
-    TrialLog,
-    format_summary,
-    is_ok,
-    read_trials,
-    trial_key,
-)
-from vp2.benchmark.run_dir import (
-    SUMMARY_FILE,
-    SUMMARY_JSON,
-    check_same_instances,
-    load_existing,
-    prepare_run_dir,
-    read_config,
-)
+from vp2.benchmark.results import Summary, format_summary, is_ok, trial_key, trial_keys
+from vp2.benchmark.run_dir import Records, RunDir
 from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
 from vp2.benchmark.worker import (
     Job,
@@ -86,9 +72,8 @@ from vp2.benchmark.worker import (
     worker_died,
 )
 from vp2.data.suite import TaskInstance, TaskSuite
-from vp2.envs import ENV_TASKS, TASK_NAMES
+from vp2.envs import ENV_TASKS
 from vp2.utils.executors import LiveQueue, LocalExecutor, RayExecutor, WorkerLost
-from vp2.utils.io import atomic_path, json_safe, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -134,27 +119,36 @@ class RunResult:
 
 
 def select_instances(suite: TaskSuite, config: RunConfig) -> list[TaskInstance]:
-    """The suite's instances the run covers, in suite order."""
-    wanted: list[str] = []
-    for name in config.tasks or suite.tasks:
-        wanted += [f"{name}/{t}" for t in ENV_TASKS[name]] if name in ENV_TASKS else [name]
-    missing = [t for t in wanted if t not in suite.tasks]
-    if config.tasks and missing == wanted:
-        raise ValueError(
-            f"the suite has none of the tasks {list(config.tasks)}; it has {suite.tasks}"
-        )
-    if missing and config.tasks and not all(t in ENV_TASKS for t in config.tasks):
-        raise ValueError(f"tasks {missing} are not in the suite (it has {suite.tasks})")
-    out = []
-    for task in sorted((t for t in wanted if t in suite.tasks), key=TASK_NAMES.index):
-        insts = sorted(suite.for_task(task), key=lambda i: i.index)
-        out += insts[: config.num_instances] if config.num_instances else insts
-    return out
+    """The suite's instances the run covers, in suite order (:meth:`TaskSuite.select`)."""
+    return suite.select(config.tasks, config.num_instances)
 
 
-def trial_keys(instances: Sequence[TaskInstance], seeds: Sequence[int]) -> list[TrialKey]:
-    """Keys seed-major: an interrupted run has whole control runs finished first."""
-    return [(inst.task, inst.index, seed) for seed in seeds for inst in instances]
+def selection_notes(
+    suite: TaskSuite, config: RunConfig, instances: Sequence[TaskInstance]
+) -> list[str]:
+    """What the run asks for that the suite does not have, one line each (the runner logs
+    them as warnings; nothing is cut silently): task categories of a ``--tasks`` environment
+    the suite lacks, and categories with fewer instances than ``--num-instances``."""
+    notes = []
+    if config.tasks and all(name in ENV_TASKS for name in config.tasks):
+        envs = list(dict.fromkeys(config.tasks))
+        absent = [f"{e}/{t}" for e in envs for t in ENV_TASKS[e] if f"{e}/{t}" not in suite.tasks]
+        if absent:
+            running = len({i.task for i in instances})
+            notes.append(
+                f"--tasks {' '.join(envs)}: the suite has no instances of {', '.join(absent)}; "
+                f"running its other {running} task categor{'y' if running == 1 else 'ies'}"
+            )
+    if config.num_instances:
+        counts = collections.Counter(i.task for i in instances)
+        for task, n in counts.items():
+            if n < config.num_instances:
+                notes.append(
+                    f"--num-instances {config.num_instances}: {task} has {n} "
+                    f"instance{'s' if n != 1 else ''} in the suite; running "
+                    f"{'those' if n != 1 else 'that'} {n}"
+                )
+    return notes
 
 
 # --------------------------------------------------------------------------- the driver
@@ -189,11 +183,14 @@ def run_benchmark(
         check_spec(config.model)
     suite = TaskSuite.load(config.suite)
     instances = select_instances(suite, config)
+    for note in selection_notes(suite, config, instances):
+        log.warning("%s", note)
     by_key = {(i.task, i.index): i for i in instances}
     keys = trial_keys(instances, config.seeds)
-    run_dir = prepare_run_dir(config)
-    existing = load_existing(run_dir, config.retry_errors)
-    check_same_instances(run_dir, existing, by_key)
+    run = RunDir.prepare(config)
+    run_dir = run.path
+    existing = run.resume_records(config.retry_errors)
+    run.check_same_instances(existing, by_key)
     done = {trial_key(r) for r in existing}
     todo = [k for k in keys if k not in done]
     for message in config.deviations():
@@ -211,7 +208,7 @@ def run_benchmark(
     bar = tqdm(total=len(jobs), unit="trial", desc="vp2 run", disable=not config.progress)
     stream = _execute(jobs, config, requeue)
     try:
-        with TrialLog(run_dir / TRIALS_FILE) as trial_log:
+        with run.trial_log() as trial_log:
             for job, outcome in stream:
                 if outcome is None:  # its worker died with it running alone
                     outcome = worker_died(job, config)
@@ -231,7 +228,7 @@ def run_benchmark(
                     same = bool(streak) and _same(streak[-1], failure)
                     streak = [*streak, failure] if same else [failure]
                     if len(streak) >= FAIL_FAST_AFTER:
-                        message = _fail_fast_message(config, run_dir, failure, len(streak))
+                        message = _fail_fast_message(config, run, failure, len(streak))
                         raise ModelFailure(message)
                 elif streak:
                     streak = []
@@ -270,11 +267,11 @@ def run_benchmark(
         bar.close()
         stream.close()
 
-    records, outside = _of_keys(read_trials(run_dir), keys)
-    notes = [outside_note(run_dir, outside)] if outside else []
+    records, outside = run.split_trials(keys)
+    notes = [run.outside_note(outside)] if outside else []
     for note in notes:
         log.warning("%s", note)
-    summary = _write_summary(run_dir, config, records, notes)
+    summary = _write_summary(run, config, records, notes)
     if after_run is not None:
         after_run(run_dir)
     return RunResult(
@@ -297,9 +294,9 @@ def _same(a: dict[str, Any], b: dict[str, Any]) -> bool:
 
 
 def _fail_fast_message(
-    config: RunConfig, run_dir: Path, failure: dict[str, Any], count: int
+    config: RunConfig, run: RunDir, failure: dict[str, Any], count: int
 ) -> str:
-    kept = len(read_trials(run_dir))
+    kept, run_dir = len(run.trials()), run.path
     return (
         f"stopped: model {failure['model']} ({config.model}) failed its first {count} trial "
         f"attempts the same way, at the model boundary: {failure['field']}: expected "
@@ -308,44 +305,14 @@ def _fail_fast_message(
     )
 
 
-def _of_keys(
-    records: list[dict[str, Any]], keys: Sequence[TrialKey]
-) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    wanted = set(keys)
-    ours = [r for r in records if trial_key(r) in wanted]
-    return ours, [r for r in records if trial_key(r) not in wanted]
-
-
-def trials_of_run(
-    run_dir: str | os.PathLike[str],
-) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """The records of a run directory that its ``config.yaml`` covers (its seeds, tasks and
-    instances), and the others: trials left there by a run with more seeds or instances, or
-    appended from elsewhere. Every score of a run (its summary, ``vp2 report``, ``vp2 study``)
-    counts the first list only. Without a readable config or task suite every record counts.
-    """
-    records = read_trials(run_dir)
-    try:
-        config = read_config(run_dir)
-        keys = trial_keys(select_instances(TaskSuite.load(config.suite), config), config.seeds)
-    except (OSError, KeyError, TypeError, ValueError) as exc:
-        log.debug("%s: all %d trial(s) count (%r)", run_dir, len(records), exc)
-        return records, []
-    return _of_keys(records, keys)
-
-
-def outside_note(run_dir: str | os.PathLike[str], outside: list[dict[str, Any]]) -> str:
-    """What a reader is told about the records :func:`trials_of_run` leaves out."""
-    task, index, seed = trial_key(outside[0])
-    return (
-        f"{len(outside)} trial(s) in {Path(run_dir) / TRIALS_FILE} are outside the run's "
-        f"seeds, tasks or instances (e.g. {task} #{index} seed {seed}) and are not counted; "
-        "resume the run with settings that include them to count them"
-    )
+def trials_of_run(run_dir: str | os.PathLike[str]) -> tuple[Records, Records]:
+    """The records of a run directory that its ``config.yaml`` covers, and the others
+    (:meth:`RunDir.split_trials <vp2.benchmark.run_dir.RunDir.split_trials>`)."""
+    return RunDir(run_dir).split_trials()
 
 
 def _write_summary(
-    run_dir: Path, config: RunConfig, records: list[dict[str, Any]], notes: Sequence[str] = ()
+    run: RunDir, config: RunConfig, records: Records, notes: Sequence[str] = ()
 ) -> Summary:
     """Scores the run (normalised as :func:`~vp2.benchmark.shipped_oracle.summarize_run`
     does it) and writes ``summary.json`` and ``summary.md`` (``notes``: warnings to add)."""
@@ -358,9 +325,7 @@ def _write_summary(
     )
     summary.warnings += [f"not the SPEC protocol: {d}" for d in config.deviations()]
     summary.warnings += list(notes)
-    write_json_atomic(run_dir / SUMMARY_JSON, json_safe(summary.to_dict()))
-    with atomic_path(run_dir / SUMMARY_FILE) as tmp:
-        tmp.write_text(format_summary(summary, title=f"vp2 run {run_dir.name}") + "\n")
+    run.write_summary(summary)
     return summary
 
 

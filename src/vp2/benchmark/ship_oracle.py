@@ -11,10 +11,9 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from vp2 import spec
-from vp2.benchmark.results import is_ok, read_trials, task_success, trial_key
+from vp2.benchmark.config import planner_of
+from vp2.benchmark.results import is_ok, task_success, trial_key
+from vp2.benchmark.run_dir import RunDir
 from vp2.benchmark.shipped_oracle import (
     ASSET_FORMAT,
     SETTINGS,
@@ -25,24 +24,11 @@ from vp2.benchmark.shipped_oracle import (
 from vp2.utils.io import write_json_atomic
 
 
-def read_run_config(run_dir: PathLike) -> dict[str, Any]:
-    """The ``config`` mapping of a run's ``config.yaml`` (empty if the file is missing)."""
-    path = Path(run_dir) / "config.yaml"
-    if not path.is_file():
-        return {}
-    return dict((yaml.safe_load(path.read_text()) or {}).get("config") or {})
-
-
 def _num_samples(task: str, config: Mapping[str, Any]) -> int | None:
     """Planner samples the run used on ``task`` (its setting, else the SPEC default)."""
-    from vp2.planning.planner import PlannerConfig, planner_settings
+    from vp2.planning.planner import planner_settings
 
-    planner = PlannerConfig(
-        optimizer=config.get("optimizer", "mppi"),
-        num_samples=config.get("num_samples"),
-        gamma=config.get("gamma", spec.GAMMA),
-    )
-    return planner_settings(task, planner).get("num_samples")
+    return planner_settings(task, planner_of(config)).get("num_samples")
 
 
 def _finished_date(records: Iterable[dict[str, Any]]) -> str | None:
@@ -99,8 +85,9 @@ def build_oracle_asset(
     settings: dict[str, Any] | None = None
     names, versions = [], set()
     for d in run_dirs:
-        run_dir = Path(d)
-        config = read_run_config(run_dir)
+        run = RunDir(d)
+        run_dir = run.path
+        config = run.settings()  # the flat form: SETTINGS name the planner's fields directly
         if not config:
             raise ValueError(f"{run_dir}: no config.yaml (not a vp2 run directory)")
         if not is_oracle_config(config):
@@ -109,7 +96,7 @@ def build_oracle_asset(
                 f"{config.get('agent')!r}); build the oracle from runs of `vp2 run --model "
                 "simulator`"
             )
-        run_records = list({trial_key(r): r for r in read_trials(run_dir)}.values())
+        run_records = list({trial_key(r): r for r in run.trials()}.values())
         if not run_records:
             raise ValueError(f"{run_dir}: no trials in trials.jsonl")
         errors = [r for r in run_records if not is_ok(r)]

@@ -96,7 +96,7 @@ class WorkerState:
         check_model_fits(model, cfg, env_name, action_dim, self.device)
         agent = PlanningAgent(
             model,
-            planner=cfg.planner(),
+            planner=cfg.planner,
             cost_mode=cfg.cost,  # type: ignore[arg-type]
             device=self.device,
             record_predictions=cfg.save_predictions,
@@ -132,11 +132,12 @@ def check_model_fits(
             f"{action_dim}-D actions; build it for the environment (a factory that declares an "
             f"`action_dim` parameter gets the environment's; {MODEL_DOCS})"
         )
-    if cfg.optimizer in GRADIENT_OPTIMIZERS:
+    optimizer = cfg.planner.optimizer
+    if optimizer in GRADIENT_OPTIMIZERS:
         problem = gradient_problem(model, device)
         if problem is not None:
             raise ModelMismatch(
-                f"the {cfg.optimizer} optimizer needs gradients of the predictions with respect "
+                f"the {optimizer} optimizer needs gradients of the predictions with respect "
                 f"to the actions, but model {name} {problem}; plan with --optimizer mppi or cem"
             )
 

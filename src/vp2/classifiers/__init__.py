@@ -20,7 +20,7 @@ classifier to the pixel error. This package provides
   ``pixel_only`` fallback;
 * the ``vp2 train-classifier`` command lives in :mod:`vp2.cli.train_classifier`.
 
-See ``docs/benchmark.md`` (Success classifiers) for the measured accuracy and cost.
+See ``docs/classifiers.md`` (figures in ``docs/measurements.md``).
 """
 
 from vp2.classifiers.checkpoint import (

@@ -1,10 +1,12 @@
 """Which success classifier each RoboDesk task plans with: the registry and the shipped files.
 
-The RoboDesk planning cost (SPEC §6) looks a task's classifier up in :data:`CLASSIFIERS`. The
-classifiers shipped in ``vp2/assets/classifiers/<task>.pt`` (or, with ``$VP2_CLASSIFIERS_DIR``
-set, those of that directory) are registered into it when this module is first imported, so
-before any planning; they are loaded on first use. A task without a file keeps the
-``pixel_only`` fallback of :func:`vp2.planning.planner.build_cost`.
+The RoboDesk planning cost (SPEC §6) looks a task's classifier up in :data:`CLASSIFIERS`, by
+the classifier key the task's registry entry names (``Task.classifier`` of
+:data:`vp2.envs.tasks.TASKS`; the key is the task's name). The classifiers shipped in
+``vp2/assets/classifiers/<task>.pt`` (or, with ``$VP2_CLASSIFIERS_DIR`` set, those of that
+directory) are registered into it when this module is first imported, so before any planning;
+they are loaded on first use. A task without a file keeps the ``pixel_only`` fallback of
+:func:`vp2.planning.costs.build_cost`.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import torch
 from torch import Tensor
 
 from vp2.classifiers.checkpoint import load_classifier
-from vp2.envs import ROBODESK_TASKS, split_name
+from vp2.envs import TASKS, get_task, split_name
 from vp2.utils.io import write_json_atomic
 
 #: Where the shipped classifiers live: ``<task>.pt`` (``task`` like ``push_red``) and
@@ -30,8 +32,10 @@ ASSETS_DIR = Path(__file__).resolve().parents[1] / "assets" / "classifiers"
 #: the shipped ones (e.g. to compare classifier variants with the oracle).
 CLASSIFIERS_ENV_VAR = "VP2_CLASSIFIERS_DIR"
 METRICS_FILE = "metrics.json"
-#: The RoboDesk tasks that have a success classifier (all 7).
-CLASSIFIER_TASKS: tuple[str, ...] = tuple(f"robodesk/{t}" for t in ROBODESK_TASKS)
+#: The tasks that have a success classifier (the 7 RoboDesk tasks), from the task registry.
+CLASSIFIER_TASKS: tuple[str, ...] = tuple(
+    name for name, task in TASKS.items() if task.classifier is not None
+)
 
 #: ``loader(device) -> classifier`` with ``classifier(images (M, 3, H, W) in [0, 1]) -> logits
 #: (M,)``. Registered per RoboDesk task.
@@ -41,9 +45,10 @@ ClassifierLoader = Callable[[torch.device], Callable[[Tensor], Tensor]]
 class ClassifierRegistry:
     """Success classifiers per task, registered by whoever provides them.
 
-    The classifiers shipped with the package are registered into :data:`CLASSIFIERS` when this
-    module is imported (:func:`register_shipped_classifiers`). Loaded classifiers are cached
-    per ``(task, device)`` in the process.
+    Keys are the classifier keys tasks name (``Task.classifier``, the task's name, e.g.
+    ``"robodesk/push_red"``). The classifiers shipped with the package are registered into
+    :data:`CLASSIFIERS` when this module is imported (:func:`register_shipped_classifiers`).
+    Loaded classifiers are cached per ``(task, device)`` in the process.
     """
 
     def __init__(self) -> None:
@@ -81,10 +86,10 @@ CLASSIFIERS = ClassifierRegistry()
 def short_task(task: str) -> str:
     """``"robodesk/push_red"`` or ``"push_red"`` -> ``"push_red"`` (checked)."""
     full = task if "/" in task else f"robodesk/{task}"
-    env, name = split_name(full)
-    if env != "robodesk":
+    registered = get_task(full)
+    if registered.classifier is None:
         raise ValueError(f"{task}: success classifiers exist for RoboDesk tasks only")
-    return name
+    return registered.task
 
 
 def shipped_path(task: str, directory: str | Path = ASSETS_DIR) -> Path:
@@ -115,7 +120,8 @@ def register_shipped_classifiers(
     for task in CLASSIFIER_TASKS:
         path = shipped_path(task, directory)
         if path.is_file():
-            registry.register(task, lambda device, path=path: load_classifier(path, device))
+            key = TASKS[task].classifier
+            registry.register(key, lambda device, path=path: load_classifier(path, device))
             registered.append(task)
     return registered
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import re
 import sys
 from collections.abc import Mapping
@@ -20,6 +21,8 @@ from vp2.metrics.evaluate import (
 )
 from vp2.training.perceptual import BACKBONES
 from vp2.utils.kv import parse_key_values, yaml_value
+
+log = logging.getLogger(__name__)
 
 NAME = "metrics"
 HELP = "perceptual metrics of a model on held-out clips"
@@ -133,6 +136,12 @@ def run_from_args(args: argparse.Namespace) -> int:
     print(format_table(result))
     for name, why in result["skipped"].items():
         print(f"skipped {name}: {why}", file=sys.stderr)
+    if result["num_clips"] < args.num_clips:  # the split has fewer: all of them were used
+        n = result["num_clips"]
+        log.warning(
+            "--num-clips %d: the dataset's %s split has %d clips; evaluated those %d",
+            args.num_clips, result["split"], n, n,
+        )
     print(f"wrote {out}")
     return 0
 

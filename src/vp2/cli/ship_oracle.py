@@ -13,7 +13,7 @@ HELP = "build the shipped oracle (the default normaliser) from simulator-oracle 
 DESCRIPTION = (
     "Reads finished simulator-oracle run directories and writes the per-task success rates "
     "that vp2 run, main and report normalise scores by when no --oracle is given "
-    "(docs/benchmark.md, 'The shipped oracle')."
+    "(docs/evaluation.md, 'The shipped oracle')."
 )
 
 

@@ -1,11 +1,14 @@
-"""``vp2 tasks generate|list|show``: the task suite (docs/benchmark.md)."""
+"""``vp2 tasks generate|list|show``: the task suite (docs/data.md)."""
 
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 
 from vp2.cli._common import add_executor_flags, make_executor_from_args
+
+log = logging.getLogger(__name__)
 
 NAME = "tasks"
 HELP = "the task suite: generate, list, show"
@@ -40,6 +43,12 @@ def run_from_args(args: argparse.Namespace) -> int:
     # show
     from vp2.data.suite_view import suite_contact_sheet
 
+    available = len(suite.for_task(args.task))
+    if 0 < available < args.max:
+        log.warning(
+            "--max %d: %s has %d instances in the suite; showing those %d",
+            args.max, args.task, available, available,
+        )
     png = suite_contact_sheet(suite, args.task, args.out, max_instances=args.max)
     print(f"contact sheet: {png}")
     return 0

@@ -17,10 +17,10 @@ grow).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
+from vp2.cli._fields import Flag, add_flags, build
 from vp2.data.datasets import default_dataset, default_trajectories
 from vp2.data.storage import MANIFEST, DatasetError, load_manifest
 from vp2.models.registry import MODELS, make_config, model_names, parse_overrides
@@ -36,9 +36,6 @@ DESCRIPTION = (
 )
 
 
-_DEFAULTS = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
-
-
 def default_out_dir(config: TrainConfig) -> Path:
     """``runs/<model>-<preset>-<dataset name>[-<perceptual><weight>]-seed<seed>``."""
     preset = config.preset or MODELS[config.model].default_preset
@@ -46,19 +43,6 @@ def default_out_dir(config: TrainConfig) -> Path:
     if config.perceptual and config.perceptual_weight > 0:
         name += f"-{config.perceptual}{config.perceptual_weight:g}"
     return Path("runs") / f"{name}-seed{config.seed}"
-
-
-def _add_int(
-    group: argparse._ActionsContainer,
-    flag: str,
-    help: str | None = None,
-    metavar: str | None = None,
-    field: str | None = None,
-) -> None:
-    """An integer flag whose default is that of the :class:`TrainConfig` field it sets
-    (``field``; default: the flag's name)."""
-    default = _DEFAULTS[field or flag.removeprefix("--").replace("-", "_")]
-    group.add_argument(flag, type=int, default=default, metavar=metavar, help=help)
 
 
 #: Shown under ``vp2 train --help``: the smallest presets and how to train on a CPU (the
@@ -73,113 +57,122 @@ on a CPU: fitvid mini predicts a 200-sample planning batch in 18 s, svg_prime m0
 under contention one thread trained 5x faster than two (docs/models.md)."""
 
 
-def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Adds the ``vp2 train`` flags to ``p`` (a sub-parser) and returns it."""
-    p.epilog = SIZES_EPILOG
-    p.formatter_class = argparse.RawDescriptionHelpFormatter
+def _flags() -> dict[str, Flag | None]:
+    """One entry per :class:`TrainConfig` field (and ``--env``), in the order of ``vp2 train
+    --help``; the help of ``--model``, ``--preset``, ``--env`` and ``--data`` lists what the
+    registries hold."""
     envs = sorted(default_trajectories())
-    what = p.add_argument_group("what to train")
-    what.add_argument("--model", required=True, choices=model_names(), help="model to train")
     presets = "; ".join(
         f"{name}: {', '.join(entry.presets)} (default {entry.default_preset})"
         for name, entry in sorted(MODELS.items())
     )
-    what.add_argument("--preset", help=f"size preset ({presets})")
-    what.add_argument(
-        "--model-arg",
-        nargs="+",
-        action="extend",
-        default=[],
-        metavar="KEY=VALUE",
-        help="model config overrides (repeatable), e.g. beta=1e-3 rnn_size=256",
-    )
+    what, data, opt, run = "what to train", "data", "optimisation", "run"
+    return {
+        "model": Flag(group=what, required=True, choices=model_names(), help="model to train"),
+        "preset": Flag(group=what, help=f"size preset ({presets})"),
+        "model_overrides": Flag(
+            "--model-arg",
+            group=what,
+            nargs="+",
+            action="extend",
+            default=[],
+            metavar="KEY=VALUE",
+            help="model config overrides (repeatable), e.g. beta=1e-3 rnn_size=256",
+        ),
+        "env": Flag(
+            group=data,
+            cli_only=True,
+            choices=envs,
+            help="environment: trains on all its tasks; picks the default --data",
+        ),
+        "dataset": Flag(
+            "--data",
+            group=data,
+            type=Path,
+            default=None,
+            metavar="DIR",
+            help="dataset directory (default: the one `vp2 collect ENV` writes: "
+            + ", ".join(str(default_dataset(e)) for e in envs)
+            + ")",
+        ),
+        "tasks": Flag(group=data, metavar="STREAM", help="train on these data streams only"),
+        "max_trajectories": Flag(
+            "--num-trajectories",
+            group=data,
+            metavar="N",
+            help="use only the dataset's first N trajectories (all tasks interleaved)",
+        ),
+        "steps": Flag(group=opt, help="total steps (default: %(default)s; paper: 153K)"),
+        "max_minutes": Flag(
+            group=opt,
+            metavar="MIN",
+            help="training time budget: stop (validate, write the final checkpoint) after the "
+            "first step at which the run's training wall time, earlier --resume sessions "
+            "included, reaches MIN minutes, or at --steps if that comes first (default: no "
+            "budget)",
+        ),
+        "batch_size": Flag(group=opt, help="default: %(default)s"),
+        "lr": Flag(group=opt, help="learning rate (default: the model's, 3e-4)"),
+        "optimizer": Flag(
+            group=opt, choices=["adam", "adamw"], help="default: the model's (Adam)"
+        ),
+        "weight_decay": Flag(group=opt, help="default: the model's (0)"),
+        "grad_clip": Flag(
+            group=opt,
+            help="max gradient norm (default: the model's, FitVid 100, SVG' none; <= 0: off)",
+        ),
+        "seed": Flag(group=opt, help="weights, data order, noise"),
+        "perceptual": Flag(
+            group=opt,
+            choices=sorted(PERCEPTUAL_LOSSES),
+            help="add a perceptual loss term (LPIPS weights must be on disk: docs/metrics.md)",
+        ),
+        "perceptual_weight": Flag(
+            group=opt,
+            default=None,
+            metavar="W",
+            help="its weight (default 1 with --perceptual; the paper used 0, 1 and 10)",
+        ),
+        "out_dir": Flag(
+            "--out",
+            group=run,
+            type=Path,
+            default=None,
+            metavar="DIR",
+            help="run directory (default: runs/<model>-<preset>-<dataset>[-<perceptual><W>]"
+            "-seed<seed>)",
+        ),
+        "resume": Flag(
+            group=run, help="continue the run in --out from its newest checkpoint"
+        ),
+        "device": Flag(group=run, help="cuda, cuda:1, cpu, ... (default: CUDA if available)"),
+        "amp": Flag(
+            group=run,
+            action=argparse.BooleanOptionalAction,
+            help="mixed precision (default: on for CUDA only)",
+        ),
+        "workers": Flag(group=run, help="data loader processes (0: none)"),
+        "eval_interval": Flag(
+            group=run,
+            metavar="STEPS",
+            help="validate and save a prediction grid every STEPS (0: at the end)",
+        ),
+        "eval_batches": Flag(group=run),
+        "ckpt_interval": Flag(
+            group=run, metavar="STEPS", help="checkpoint every STEPS (and at the end)"
+        ),
+        "keep_checkpoints": Flag(group=run, metavar="N"),
+        "log_interval": Flag(group=run, metavar="STEPS"),
+        "tensorboard": Flag("--no-tensorboard", group=run, negate=True, help="CSV log only"),
+        "progress": Flag("--no-progress", group=run, negate=True, help="no progress bar"),
+    }
 
-    data = p.add_argument_group("data")
-    data.add_argument(
-        "--env", choices=envs, help="environment: trains on all its tasks; picks the default --data"
-    )
-    data.add_argument(
-        "--data",
-        type=Path,
-        metavar="DIR",
-        help="dataset directory (default: the one `vp2 collect ENV` writes: "
-        + ", ".join(str(default_dataset(e)) for e in envs)
-        + ")",
-    )
-    data.add_argument(
-        "--tasks", nargs="+", metavar="STREAM", help="train on these data streams only"
-    )
-    _add_int(
-        data,
-        "--num-trajectories",
-        "use only the dataset's first N trajectories (all tasks interleaved)",
-        metavar="N",
-        field="max_trajectories",
-    )
 
-    opt = p.add_argument_group("optimisation")
-    _add_int(opt, "--steps", "total steps (default: %(default)s; paper: 153K)")
-    opt.add_argument(
-        "--max-minutes",
-        type=float,
-        metavar="MIN",
-        help="training time budget: stop (validate, write the final checkpoint) after the first "
-        "step at which the run's training wall time, earlier --resume sessions included, "
-        "reaches MIN minutes, or at --steps if that comes first (default: no budget)",
-    )
-    _add_int(opt, "--batch-size", "default: %(default)s")
-    opt.add_argument("--lr", type=float, help="learning rate (default: the model's, 3e-4)")
-    opt.add_argument("--optimizer", choices=["adam", "adamw"], help="default: the model's (Adam)")
-    opt.add_argument("--weight-decay", type=float, help="default: the model's (0)")
-    opt.add_argument(
-        "--grad-clip",
-        type=float,
-        help="max gradient norm (default: the model's, FitVid 100, SVG' none; <= 0: off)",
-    )
-    _add_int(opt, "--seed", "weights, data order, noise")
-    opt.add_argument(
-        "--perceptual",
-        choices=sorted(PERCEPTUAL_LOSSES),
-        help="add a perceptual loss term (LPIPS weights must be on disk: docs/metrics.md)",
-    )
-    opt.add_argument(
-        "--perceptual-weight",
-        type=float,
-        metavar="W",
-        help="its weight (default 1 with --perceptual; the paper used 0, 1 and 10)",
-    )
-
-    run = p.add_argument_group("run")
-    run.add_argument(
-        "--out",
-        type=Path,
-        metavar="DIR",
-        help="run directory (default: runs/<model>-<preset>-<dataset>[-<perceptual><W>]"
-        "-seed<seed>)",
-    )
-    run.add_argument(
-        "--resume", action="store_true", help="continue the run in --out from its newest checkpoint"
-    )
-    run.add_argument("--device", help="cuda, cuda:1, cpu, ... (default: CUDA if available)")
-    run.add_argument(
-        "--amp",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="mixed precision (default: on for CUDA only)",
-    )
-    _add_int(run, "--workers", "data loader processes (0: none)")
-    _add_int(
-        run,
-        "--eval-interval",
-        "validate and save a prediction grid every STEPS (0: at the end)",
-        metavar="STEPS",
-    )
-    _add_int(run, "--eval-batches")
-    _add_int(run, "--ckpt-interval", "checkpoint every STEPS (and at the end)", metavar="STEPS")
-    _add_int(run, "--keep-checkpoints", metavar="N")
-    _add_int(run, "--log-interval", metavar="STEPS")
-    run.add_argument("--no-tensorboard", action="store_true", help="CSV log only")
-    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Adds the ``vp2 train`` flags to ``p`` (a sub-parser) and returns it."""
+    p.epilog = SIZES_EPILOG
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    add_flags(p, TrainConfig, _flags())
     return p
 
 
@@ -223,18 +216,11 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
             f"--perceptual-weight {weight:g} needs --perceptual NAME "
             f"({', '.join(sorted(PERCEPTUAL_LOSSES))})"
         )
-    # One flag per TrainConfig field, of the same name except for these.
-    renamed = {
-        "dataset": str(data),
-        "out_dir": "",
-        "model_overrides": overrides,
-        "max_trajectories": args.num_trajectories,
-        "perceptual_weight": weight,
-        "tensorboard": not args.no_tensorboard,
-        "progress": not args.no_progress,
-    }
-    fields = [f.name for f in dataclasses.fields(TrainConfig) if f.name not in renamed]
-    config = TrainConfig(**{name: getattr(args, name) for name in fields}, **renamed)
+    # Every other field straight from its flag.
+    config = build(
+        TrainConfig, args, _flags(), dataset=str(data), out_dir="", model_overrides=overrides,
+        perceptual_weight=weight,
+    )
     config.out_dir = str(args.out if args.out is not None else default_out_dir(config))
     return config
 

@@ -1,7 +1,7 @@
 """The ``vp2 train-classifier`` command: train, evaluate and save RoboDesk success classifiers.
 
 :func:`configure_parser` and :func:`run_from_args` serve ``vp2 train-classifier``; :func:`main`
-serves ``python -m vp2.classifiers.command`` (the same arguments). See ``docs/benchmark.md``
+serves ``python -m vp2.classifiers.command`` (the same arguments). See ``docs/classifiers.md``
 (Success classifiers) for the measured accuracy and cost.
 """
 
@@ -26,6 +26,7 @@ from vp2.classifiers.registry import (
     update_metrics,
 )
 from vp2.classifiers.train import LR_SCHEDULES, ClassifierTrainConfig, train_task
+from vp2.cli._fields import NOT_A_FLAG, Flag, add_flags, build
 from vp2.data.storage import DatasetError
 from vp2.envs import ROBODESK_TASKS
 
@@ -33,76 +34,80 @@ NAME = "train-classifier"
 HELP = "train RoboDesk success classifiers"
 DESCRIPTION = (
     "Train the per-task RoboDesk success classifiers of the planning cost on a collected "
-    "dataset (docs/benchmark.md)."
+    "dataset (docs/classifiers.md)."
 )
 
 
-def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Adds the ``vp2 train-classifier`` arguments to ``p``."""
-    p.add_argument(
-        "--data", required=True, type=Path, help="dataset directory (vp2 collect robodesk)"
-    )
-    p.add_argument(
-        "--tasks", nargs="+", default=None, help="RoboDesk tasks, e.g. push_red (default: all 7)"
-    )
-    p.add_argument(
-        "--arch",
+def _pos_weight(value: str | None) -> float | str | None:
+    return value if value in (None, "balanced") else float(value)
+
+
+#: One entry per :class:`~vp2.classifiers.train.ClassifierTrainConfig` field (and the command's
+#: own flags), in the order of ``vp2 train-classifier --help``. ``--arch`` takes several: one
+#: config per architecture.
+FLAGS: dict[str, Flag | None] = {
+    "data": Flag(
+        cli_only=True, required=True, type=Path, help="dataset directory (vp2 collect robodesk)"
+    ),
+    "tasks": Flag(
+        cli_only=True, nargs="+", default=None,
+        help="RoboDesk tasks, e.g. push_red (default: all 7)",
+    ),
+    "arch": Flag(
+        cli_only=True,
         nargs="+",
         choices=ARCHS,
         default=["ours"],
         help="networks to train: ours (shipped) and/or paper (for comparison)",
-    )
-    p.add_argument("--steps", type=int, default=3000, help="gradient steps of ours (paper: 3000)")
-    p.add_argument(
-        "--paper-steps",
+    ),
+    "steps": Flag(help="gradient steps of ours (paper: 3000)"),
+    "paper_steps": Flag(
+        cli_only=True,
         type=int,
         default=None,
         help="gradient steps of the paper's network (default: --steps)",
-    )
-    p.add_argument(
-        "--lr-schedule",
+    ),
+    "lr": NOT_A_FLAG,
+    "lr_schedule": Flag(
         choices=LR_SCHEDULES,
-        default="constant",
         help="learning rate over the steps: constant (the paper's) or cosine (decays to 0)",
-    )
-    p.add_argument(
-        "--width",
-        type=int,
-        default=1,
-        help="channel multiplier of ours (1: 58 K parameters; 2: 4x the multiply-adds)",
-    )
-    p.add_argument("--batch-size", type=int, default=64, help="frames per gradient step")
-    p.add_argument(
-        "--shift", type=int, default=2, help="random-shift augmentation in pixels (0: off)"
-    )
-    p.add_argument(
-        "--pos-weight",
-        default=None,
+    ),
+    "width": Flag(help="channel multiplier of ours (1: 58 K parameters; 2: 4x the multiply-adds)"),
+    "batch_size": Flag(help="frames per gradient step"),
+    "grad_clip": NOT_A_FLAG,
+    "shift": Flag(help="random-shift augmentation in pixels (0: off)"),
+    "pos_weight": Flag(
         help="positive-class loss weight: a number or 'balanced' (default: none)",
-    )
-    p.add_argument(
-        "--label",
+        convert=_pos_weight,
+    ),
+    "label": Flag(
         choices=sorted(LABELS),
-        default="success",
         help="frame label: success (the simulator's success flag) or dense (the paper's: "
         "dense reward summed over the step's 50 repeats >= 30)",
-    )
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--device", default="cpu")
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    p.add_argument(
-        "--ship",
+    ),
+    "seed": Flag(),
+    "device": Flag(),
+    "threads": Flag(cli_only=True, type=int, default=None, help="torch CPU threads"),
+    "ship": Flag(
+        cli_only=True,
         action="store_true",
+        default=False,
         help="write ours into the package (vp2/assets/classifiers) with metrics.json; "
         "the paper's checkpoints (50 MB each) go to --out",
-    )
-    p.add_argument(
-        "--out",
+    ),
+    "out": Flag(
+        cli_only=True,
         type=Path,
         default=None,
         help="run directory (default: runs/classifiers); with --ship it holds only the "
         "paper's checkpoints",
-    )
+    ),
+}
+
+
+def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Adds the ``vp2 train-classifier`` arguments to ``p`` (one per :data:`FLAGS` entry)."""
+    add_flags(p, ClassifierTrainConfig, FLAGS)
     return p
 
 
@@ -140,9 +145,6 @@ def run_from_args(args: argparse.Namespace) -> int:
     """
     if args.threads is not None:
         torch.set_num_threads(args.threads)
-    pos_weight: float | str | None = args.pos_weight
-    if pos_weight not in (None, "balanced"):
-        pos_weight = float(pos_weight)
     tasks = [short_task(t) for t in (args.tasks or ROBODESK_TASKS)]
     run_dir = Path(args.out) if args.out is not None else Path("runs/classifiers")
     metrics_dir = ASSETS_DIR if args.ship else run_dir
@@ -152,18 +154,8 @@ def run_from_args(args: argparse.Namespace) -> int:
     for task in tasks:
         for arch in args.arch:
             steps = args.paper_steps if arch == "paper" and args.paper_steps else args.steps
-            config = ClassifierTrainConfig(
-                arch=arch,
-                steps=steps,
-                batch_size=args.batch_size,
-                lr_schedule=args.lr_schedule,
-                width=args.width if arch == "ours" else 1,
-                shift=args.shift,
-                pos_weight=pos_weight,
-                seed=args.seed,
-                device=args.device,
-                label=args.label,
-            )
+            width = args.width if arch == "ours" else 1
+            config = build(ClassifierTrainConfig, args, FLAGS, arch=arch, steps=steps, width=width)
             model, meta = train_task(args.data, task, config, command)
             directory = ASSETS_DIR if args.ship and arch == "ours" else run_dir
             path = save_classifier(directory / checkpoint_name(task, arch), model, meta)

@@ -37,17 +37,15 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from vp2.envs import ROBODESK_TASKS, TABLETOP_TASKS, TASK_NAMES, make_env, split_name
+from vp2.envs import ENV_TASKS, TASK_NAMES, TASKS, make_env, split_name
 from vp2.envs.base import Env
 from vp2.spec import NUM_CONTROL_STEPS
 from vp2.utils.executors import Executor, LocalExecutor
 from vp2.utils.io import atomic_path
 
-#: Instances per task category (SPEC §2): 30 per RoboDesk task, 25 per tabletop category.
-SUITE_COUNTS: dict[str, int] = {
-    **{f"robodesk/{t}": 30 for t in ROBODESK_TASKS},
-    **{f"tabletop/{t}": 25 for t in TABLETOP_TASKS},
-}
+#: Instances per task category (SPEC §2): 30 per RoboDesk task, 25 per tabletop category
+#: (``Task.suite_instances`` of :data:`vp2.envs.tasks.TASKS`).
+SUITE_COUNTS: dict[str, int] = {name: task.suite_instances for name, task in TASKS.items()}
 SUITE_SEED = 2023
 GOAL_IMAGE_SIZE = 64
 HORIZON = 35
@@ -123,6 +121,35 @@ class TaskSuite:
     def for_task(self, task: str) -> list[TaskInstance]:
         split_name(task)
         return [i for i in self.instances if i.task == task]
+
+    def select(
+        self, names: Sequence[str] = (), num_instances: int | None = None
+    ) -> list[TaskInstance]:
+        """The instances of some task categories, the first ``num_instances`` of each, in the
+        canonical task order (what a benchmark run covers).
+
+        Args:
+            names: Task categories or environment names (an environment: those of its task
+                categories the suite has); empty: every task category of the suite.
+            num_instances: Instances per task category (``None``: all). A category with
+                fewer gives what it has; the caller says so.
+
+        Raises:
+            ValueError: the suite has none of ``names``, or a named task category is missing.
+        """
+        wanted: list[str] = []
+        for name in names or self.tasks:
+            wanted += [f"{name}/{t}" for t in ENV_TASKS[name]] if name in ENV_TASKS else [name]
+        missing = [t for t in wanted if t not in self.tasks]
+        if names and missing == wanted:
+            raise ValueError(f"the suite has none of the tasks {list(names)}; it has {self.tasks}")
+        if missing and names and not all(t in ENV_TASKS for t in names):
+            raise ValueError(f"tasks {missing} are not in the suite (it has {self.tasks})")
+        out = []
+        for task in sorted((t for t in wanted if t in self.tasks), key=TASK_NAMES.index):
+            insts = sorted(self.for_task(task), key=lambda i: i.index)
+            out += insts[:num_instances] if num_instances else insts
+        return out
 
     def get(self, task: str, index: int) -> TaskInstance:
         for inst in self.instances:

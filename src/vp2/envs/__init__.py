@@ -15,9 +15,10 @@ tabletop  push_large_cube, push_small_cube, push_cylinder, push_sphere
 ========  =================================================================================
 
 Every environment is also a Gymnasium environment, registered as ``vp2/<Env>-<Task>-v0``
-(``gymnasium.make("vp2/RoboDesk-PushRed-v0")``, :mod:`vp2.envs.registration`). The task names
-are defined in :mod:`vp2.envs.tasks`, the constructors in :mod:`vp2.envs.factory`; this package
-re-exports both.
+(``gymnasium.make("vp2/RoboDesk-PushRed-v0")``, :mod:`vp2.envs.registration`). The tasks are
+registered in :mod:`vp2.envs.tasks` (:data:`TASKS`: one :class:`Task` per category, with its
+success rule, planner sample count, cost form, classifier and policy keys and suite share), the
+constructors in :mod:`vp2.envs.factory`; this package re-exports both.
 """
 
 from __future__ import annotations
@@ -33,6 +34,9 @@ from vp2.envs.tasks import (
     ROBODESK_TASKS,
     TABLETOP_TASKS,
     TASK_NAMES,
+    TASKS,
+    Task,
+    get_task,
     split_name,
 )
 
@@ -50,8 +54,11 @@ __all__ = [
     "Env",
     "ROBODESK_TASKS",
     "TABLETOP_TASKS",
+    "TASKS",
     "TASK_NAMES",
+    "Task",
     "env_class",
+    "get_task",
     "make_env",
     "make_env_from_metadata",
     "split_name",

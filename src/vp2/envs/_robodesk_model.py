@@ -17,7 +17,7 @@ from vp2.envs.meshes import simplified_render_model
 from vp2.envs.rendering import SOFTWARE_RENDERING, FreeCamera, RenderSpec
 
 #: The benchmark camera (SPEC §1.1) and the quality settings chosen for software rendering
-#: (``benchmarks/bench_render_floor.py``, docs/robodesk.md "Rendering"). The renderer draws a
+#: (``benchmarks/speed/bench_render_floor.py``, docs/robodesk.md "Rendering"). The renderer draws a
 #: render-only model whose Panda visual meshes (134k of the scene's 142k triangles) are
 #: decimated to 5% (``mesh_reduction=0.95``, :func:`load_render_model`; physics untouched);
 #: the floor plane is tessellated into 0.5 m squares instead of 0.1 m (25x fewer quads per

@@ -119,7 +119,7 @@ SPHERE_ROLLING_FRICTION = 0.004
 #: in the 64x64 image. Against the first, nearly overhead view (84 degrees) it doubles the
 #: objects' share of the pixel cost between the initial frame and the goal image (6.8% -> 13.5%)
 #: and shows the pushed object in 80% of the goal images instead of 34% (from above the hand
-#: hid it): ``benchmarks/tabletop_view_study.py``, docs/benchmark.md.
+#: hid it): ``benchmarks/studies/tabletop_view_study.py``, docs/findings/environments.md.
 CAMERA_NAME = "vp2_tabletop"
 CAMERA_POS = (2.696, 0.0, 3.741)
 CAMERA_LOOKAT = (-0.245, 0.0, 0.8)

@@ -3,7 +3,7 @@
 The benchmark's seven RoboDesk task categories (SPEC §1.1) on the ``robodesk`` package's MuJoCo
 assets, simulated with ``mujoco`` directly. The dynamics are those of
 ``robodesk.RoboDesk(action_repeat=50)`` -- bit-identical, see ``docs/robodesk.md`` and
-``benchmarks/robodesk_equivalence.py`` -- at a fraction of its cost:
+``benchmarks/fidelity/robodesk_equivalence.py`` -- at a fraction of its cost:
 
 * one env step = 50 action repeats; each repeat solves IK for the end-effector target
   ``site position + 0.01 * action[:3]`` (:class:`vp2.envs._ik.SitePositionIK`, the same
@@ -42,7 +42,7 @@ from vp2.envs._ik import SitePositionIK
 from vp2.envs._robodesk_model import RENDER_SPEC, load_model, load_render_model
 from vp2.envs.base import Env
 from vp2.envs.rendering import Renderer
-from vp2.envs.tasks import ROBODESK_TASKS
+from vp2.envs.tasks import ROBODESK_TASKS, Task, get_task
 
 #: The seven task categories (:data:`vp2.envs.tasks.ROBODESK_TASKS`).
 TASKS: tuple[str, ...] = ROBODESK_TASKS
@@ -119,8 +119,9 @@ class RoboDeskEnv(Env):
         #: Length of the state vector.
         self.state_size = self._integration_size + 3 * len(OBJECTS)
         self._original_pos = np.zeros((len(OBJECTS), 3))
-        self._success_fn = self._make_success_fn(task)
-        self._dense_fn = self._make_dense_reward_fn(task)
+        registered = get_task(self.name)
+        self._success_fn = self._make_success_fn(registered)
+        self._dense_fn = self._make_dense_reward_fn(registered)
         #: When true, ``step`` sums the package's dense reward over its 50 action repeats into
         #: ``info["dense_reward"]`` (data collection for the classifiers' paper label; off by
         #: default to keep the planner's step lean).
@@ -309,18 +310,22 @@ class RoboDeskEnv(Env):
             )
 
     # ---- success ---------------------------------------------------------------------------
-    def _make_success_fn(self, task: str) -> Callable[[], bool]:
+    # The task's success rule and target come from its registry entry (vp2.envs.tasks.TASKS);
+    # the thresholds and the state they are read from are this simulator's, kept here.
+    def _make_success_fn(self, task: Task) -> Callable[[], bool]:
         qpos = self.data.qpos
-        if task.startswith("push_"):
-            light = self._qadr(f"{task[5:]}_light")
+        if task.success == "button_pressed":
+            light = self._qadr(f"{task.target}_light")
             return lambda: qpos[light] < BUTTON_PRESSED_BELOW
-        if task == "open_slide":
+        if task.success == "slide_open":
             slide = self._qadr("slide_joint")
             return lambda: qpos[slide] > SLIDE_OPEN_ABOVE
-        if task == "open_drawer":
+        if task.success == "drawer_open":
             drawer = self._qadr("drawer_joint")
             return lambda: qpos[drawer] < DRAWER_OPEN_BELOW
-        target = OBJECTS.index(task[: -len("_off_table")])
+        if task.success != "off_table":
+            raise ValueError(f"{task.name}: RoboDesk has no success rule {task.success!r}")
+        target = OBJECTS.index(task.target)
         z_adr = self._object_qadr[target] + 2
         others = [i for i in range(len(OBJECTS)) if i != target]
 
@@ -331,7 +336,7 @@ class RoboDeskEnv(Env):
 
         return off_table
 
-    def _make_dense_reward_fn(self, task: str) -> Callable[[], float]:
+    def _make_dense_reward_fn(self, task: Task) -> Callable[[], float]:
         """The ``robodesk`` package's dense reward of the task, on the current state.
 
         Same terms and weights as the package's task rewards, with its original-position bug
@@ -342,11 +347,11 @@ class RoboDeskEnv(Env):
         def reach(point: np.ndarray) -> float:  # 1 at the point, 0 a metre or more away
             return min(1.0, max(0.0, 1.0 - float(np.linalg.norm(ee - point))))
 
-        if task.startswith("push_"):
+        if task.success == "button_pressed":
             pressed = self._make_success_fn(task)
-            button = self._id(mujoco.mjtObj.mjOBJ_BODY, f"{task[5:]}_button")
+            button = self._id(mujoco.mjtObj.mjOBJ_BODY, f"{task.target}_button")
             return lambda: 0.25 * pressed() + 0.75 * reach(d.xpos[button])
-        if task == "open_slide":
+        if task.success == "slide_open":
             slide = self._qadr("slide_joint")
             handle = self._id(mujoco.mjtObj.mjOBJ_SITE, "slide_handle")
             offset = np.array([0.15, 0.0, 0.0])
@@ -358,11 +363,11 @@ class RoboDeskEnv(Env):
                 return 0.9 * task_reward + 0.1 * stay
 
             return slide_reward
-        if task == "open_drawer":
+        if task.success == "drawer_open":
             drawer = self._qadr("drawer_joint")
             handle = self._id(mujoco.mjtObj.mjOBJ_GEOM, "drawer_handle")
             return lambda: 0.75 * abs(d.qpos[drawer]) / 0.3 + 0.25 * reach(d.geom_xpos[handle])
-        target = OBJECTS.index(task[: -len("_off_table")])
+        target = OBJECTS.index(task.target)  # off_table (checked by _make_success_fn)
         others = [i for i in range(len(OBJECTS)) if i != target]
         body = self._object_bodies[target]
 

@@ -30,7 +30,7 @@ Speed: a control step does not go through robosuite's ``env.step`` but through
 :class:`~vp2.envs._tabletop_stepper.LeanStepper`, which performs the same arithmetic without
 robosuite's per-physics-step bookkeeping (bit-identical results, several times faster); images
 come from the shared :class:`~vp2.envs.rendering.Renderer` with :data:`RENDER_SPEC`. See
-``docs/tabletop.md`` for the measurements.
+``docs/measurements.md`` for the measurements.
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ from vp2.envs._tabletop_world import (
 )
 from vp2.envs.base import Env
 from vp2.envs.rendering import SOFTWARE_RENDERING, Renderer, RenderSpec
-from vp2.envs.tasks import TABLETOP_TASKS
+from vp2.envs.tasks import TABLETOP_TASKS, get_task
 
 __all__ = [
     "ARM_INIT_NOISE",
@@ -68,7 +68,8 @@ __all__ = [
 ]
 
 #: The benchmark camera's render specification. The quality knobs were chosen by measurement
-#: (``benchmarks/bench_tabletop.py``, ``benchmarks/bench_render_floor.py``, docs/tabletop.md):
+#: (``benchmarks/speed/bench_tabletop.py``, ``benchmarks/speed/bench_render_floor.py``,
+#: docs/measurements.md):
 #: the arena's only light casts no shadow, so no shadow pass is drawn (a small shadow map saves
 #: GL memory); the floor's 1% reflectance would re-render the whole scene for no visible
 #: effect from this camera; multisampling costs more than half of the render time on a
@@ -79,7 +80,7 @@ __all__ = [
 #: more coarsely; the physics model is untouched. Mean absolute error against
 #: ``RENDER_SPEC.full_quality()`` (original meshes) at 64x64: 6.46/255 on average, 7.15/255 at
 #: most over 56 varied states (budget 8/255); 5.0 ms per frame vs 13.1 ms with the original
-#: meshes (2026-11-24, load ~4). See docs/tabletop.md.
+#: meshes (2026-11-24, load ~4). See docs/measurements.md.
 RENDER_SPEC = RenderSpec(
     camera=CAMERA_NAME,
     shadow_size=256,
@@ -151,7 +152,7 @@ class TabletopEnv(Env):
         self.name = f"tabletop/{task}"
         self.seed = seed
         self.observation_size = None if observation_size is None else int(observation_size)
-        self.target_object = OBJECT_NAMES.index(task.removeprefix("push_"))
+        self.target_object = OBJECT_NAMES.index(get_task(self.name).target)
         self._rng = np.random.default_rng(seed)
         self._goal_state: np.ndarray | None = None
 

@@ -6,14 +6,17 @@
 - :mod:`vp2.models.base`: :class:`VideoPredictor`, base class of the trainable networks,
   whose ``predict`` checks every call; :mod:`vp2.models.layers`: what the networks share.
 - :func:`build_model` / :func:`load_model` (:mod:`vp2.models.registry`): a fresh model from a
-  name and preset, or a trained one from a checkpoint (:mod:`vp2.models.checkpoint`).
+  name and preset, or a trained one from a checkpoint (:mod:`vp2.models.checkpoint`, the
+  format; :class:`CheckpointSpec`, the ``NAME:CHECKPOINT`` form of ``--model``).
   Training lives in :mod:`vp2.training`. See ``docs/models.md``.
 """
 
 from vp2.models.base import LossOutput, ModelConfig, TrainingDefaults, VideoPredictor
 from vp2.models.checkpoint import (
     CHECKPOINT_FORMAT,
+    CheckpointError,
     latest_checkpoint,
+    model_entry,
     read_model_checkpoint,
     write_model_checkpoint,
 )
@@ -34,6 +37,7 @@ from vp2.models.maskvit.tokenizer import MaskViTTokenizer, MaskViTTokenizerConfi
 from vp2.models.mcvd import MCVD, MCVDConfig
 from vp2.models.registry import (
     MODELS,
+    CheckpointSpec,
     all_variants,
     apply_overrides,
     build_model,
@@ -57,6 +61,8 @@ __all__ = [
     "NUM_CONTEXT",
     "NUM_FUTURE",
     "CheckedModel",
+    "CheckpointError",
+    "CheckpointSpec",
     "FitVid",
     "FitVidConfig",
     "LossOutput",
@@ -86,6 +92,7 @@ __all__ = [
     "load_model",
     "load_model_spec",
     "make_config",
+    "model_entry",
     "model_from_config",
     "model_names",
     "parse_model_spec",

@@ -319,7 +319,7 @@ class CheckedModel(CheckedPredictor):
         if missing:
             raise TypeError(
                 f"{type(model).__name__} does not implement VideoPredictionModel: missing "
-                f"{', '.join(missing)} (docs/benchmark.md, \"Plugins\")"
+                f"{', '.join(missing)} (docs/evaluation.md, \"Plugins\")"
             )
         object.__setattr__(self, "model", model)
         object.__setattr__(self, "_keywords", _declared_keywords(model.predict))

@@ -62,7 +62,7 @@ class MCVDConfig(ModelConfig):
             the ``3W`` input noise channels at high ``t``; with about one channel each, the
             SiLU caps the explained variance at corr(x, SiLU(x))² = 0.80, and a base of 16
             trained on RoboDesk stalled at ε-MSE 0.20 for ``t >= 300`` (a base of 32 reached
-            0.13 in a third of the steps; docs/benchmarks.md). Smaller values log a warning.
+            0.13 in a third of the steps; docs/findings/cpu-training.md). Smaller values log a warning.
         channel_mult: Channel multipliers per resolution level.
         num_res_blocks: Residual blocks per level on the way down (``+ 1`` on the way up).
         attn_resolutions: Feature-map sides with self-attention (plus the middle).

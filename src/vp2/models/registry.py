@@ -6,6 +6,9 @@ field overrides of its config dataclass. Presets live here, in one place::
     model = build_model("svg_prime", "m0.5k0.5", action_dim=4, seed=0)
     model = load_model("runs/svg/checkpoints")          # a trained one, ready for planning
     model = load_model_spec("svg_prime:runs/svg")       # the runner's --model syntax
+
+The checkpoint format is :mod:`vp2.models.checkpoint`; :class:`CheckpointSpec` is the
+``NAME:CHECKPOINT`` form of ``--model`` (:class:`vp2.benchmark.model_spec.ModelSpec`).
 """
 
 from __future__ import annotations
@@ -278,29 +281,78 @@ def load_model(
 
     Raises:
         FileNotFoundError: no checkpoint at ``path``.
-        ValueError: not a vp2 checkpoint, a different model than ``expected_name``, an unknown
-            override field, or an override the checkpoint's weights do not fit.
+        ValueError: not a vp2 checkpoint or a different model than ``expected_name``
+            (:class:`~vp2.models.checkpoint.CheckpointError`), an unknown override field, or
+            an override the checkpoint's weights do not fit.
     """
     device = resolve_device(device)
-    payload = read_model_checkpoint(path)
-    name = payload["model"]["name"]
-    if expected_name is not None and name != expected_name:
-        raise ValueError(f"{latest_checkpoint(path)} holds a {name!r} model, not {expected_name!r}")
-    config: Any = payload["model"]["config"]
+    path = latest_checkpoint(path)
+    entry = read_model_checkpoint(path, expected_name=expected_name)["model"]
+    name = entry["name"]
+    config: Any = entry["config"]
     if overrides:
         config = apply_overrides(_entry(name).model_class.config_class(**config), overrides)
     model = model_from_config(name, config)
     try:
-        model.load_state_dict(payload["model"]["state_dict"])
+        model.load_state_dict(entry["state_dict"])
     except RuntimeError as err:
         if not overrides:
             raise
         raise ValueError(
-            f"{latest_checkpoint(path)}: the overrides {dict(overrides)} change the {name} "
+            f"{path}: the overrides {dict(overrides)} change the {name} "
             f"architecture, so the checkpoint's weights no longer fit; override only "
             f"inference settings (e.g. sampling_steps, decoding_iterations)"
         ) from err
     return model.to(device).eval()
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckpointSpec:
+    """A trained registered model named ``NAME:CHECKPOINT`` (e.g. ``svg_prime:runs/svg``), the
+    runner's ``--model`` form for checkpoints; :meth:`match` is the one place it is parsed.
+
+    Attributes:
+        name: The registered model the checkpoint must hold.
+        path: A checkpoint file or a training run directory (its newest checkpoint).
+    """
+
+    name: str
+    path: Path
+
+    @classmethod
+    def match(cls, spec: str) -> CheckpointSpec | None:
+        """``spec`` parsed if it is ``NAME:CHECKPOINT`` with a registered ``NAME`` (split at
+        the first colon), else ``None``.
+
+        Raises:
+            ValueError: a registered name and a colon with no path after it.
+        """
+        name, sep, path = spec.partition(":")
+        if not sep or name not in MODELS:
+            return None
+        if not path:
+            raise ValueError(f"model {spec!r}: expected NAME:CHECKPOINT, e.g. svg_prime:runs/svg")
+        return cls(name, Path(path))
+
+    def check(self) -> Path:
+        """Reads the checkpoint (``torch.load(weights_only=True)``) without building the model;
+        returns its file.
+
+        Raises:
+            FileNotFoundError: no checkpoint at ``path``.
+            CheckpointError: not a vp2 checkpoint, or not of this model (a ``ValueError``).
+        """
+        path = latest_checkpoint(self.path)
+        read_model_checkpoint(path, expected_name=self.name)
+        return path
+
+    def load(
+        self,
+        device: str | torch.device | None = None,
+        overrides: Mapping[str, Any] | None = None,
+    ) -> VideoPredictor:
+        """The trained model: :func:`load_model` of ``path``, checked to be a ``name`` model."""
+        return load_model(self.path, device=device, expected_name=self.name, overrides=overrides)
 
 
 def parse_model_spec(spec: str) -> tuple[str, Path]:
@@ -309,11 +361,14 @@ def parse_model_spec(spec: str) -> tuple[str, Path]:
     Raises:
         ValueError: without a colon, or with an unregistered name.
     """
-    name, sep, path = spec.partition(":")
-    if not sep or not path:
+    checkpoint = CheckpointSpec.match(spec)
+    if checkpoint is not None:
+        return checkpoint.name, checkpoint.path
+    if ":" not in spec:
         raise ValueError(f"model {spec!r}: expected NAME:CHECKPOINT, e.g. svg_prime:runs/svg")
-    _entry(name)
-    return name, Path(path)
+    raise ValueError(
+        f"model {spec!r}: unknown model before the colon; registered: {', '.join(model_names())}"
+    )
 
 
 def load_model_spec(
@@ -322,5 +377,4 @@ def load_model_spec(
     overrides: Mapping[str, Any] | None = None,
 ) -> VideoPredictor:
     """:func:`load_model` from ``name:path``, checking the checkpoint holds that model."""
-    name, path = parse_model_spec(spec)
-    return load_model(path, device=device, expected_name=name, overrides=overrides)
+    return CheckpointSpec(*parse_model_spec(spec)).load(device=device, overrides=overrides)

@@ -78,7 +78,7 @@ class SimulatorModel(CheckedPredictor):
     ``spawn``-ed processes, each holding its own environments. The pool is started on the
     first call and lives until :meth:`close`. Do not nest it inside trial-level parallelism:
     the benchmark runner sets ``num_workers = 1`` when it runs trials in several processes
-    (``docs/benchmark.md``).
+    (``docs/evaluation.md``).
 
     Args:
         action_dim: ``A`` of the environment it is used with (4 tabletop, 5 RoboDesk).

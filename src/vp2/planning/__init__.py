@@ -7,57 +7,46 @@ models; the costs know nothing about actions. See ``docs/planning.md``.
 
 ==============  ==============================================================================
 samplers.py     ActionSampler (ABC), CorrelatedNoiseSampler, GaussianSampler
-optimizers/     Optimizer (ABC), MPPI, CEM, CEMGD, LBFGS, OPTIMIZERS, shift_plan
-costs.py        PixelSSE, ClassifierCost, PerceptualCost, WeightedCost, EnsembleCost
-planner.py      build_cost, PlannerConfig, planner_settings, build_optimizer (SPEC per task)
+optimizers/     Optimizer (ABC; each class turns a PlannerConfig into its settings), MPPI, CEM,
+                CEMGD, LBFGS, OPTIMIZERS, shift_plan
+costs.py        PixelSSE, ClassifierCost, PerceptualCost, WeightedCost, EnsembleCost,
+                build_cost (a task's cost, in the form its registry entry names)
+config.py       PlannerConfig (plain data, no torch)
+planner.py      planner_settings, build_optimizer (SPEC per task)
 agent.py        PlanningAgent, RandomActions, Observation, Agent protocol
 ==============  ==============================================================================
 
-The SPEC numbers (σ, β, γ, sample counts, cost weights) live in :mod:`vp2.spec`.
+The SPEC numbers (σ, β, γ, sample counts, cost weights) live in :mod:`vp2.spec`; which task
+uses which (its sample count, cost form and weights, classifier key) in the task registry,
+:data:`vp2.envs.tasks.TASKS`.
 
-The names of ``planner.py`` and ``agent.py`` are imported on first use: they bring in the
-models and the classifier registry, which the samplers, optimizers and costs do without.
+Every name is imported on first use: :class:`PlannerConfig` (``config.py``) is plain data that a
+run's configuration reads without torch; the agent brings in the models and the classifier
+registry, which the samplers, optimizers and costs do without (:func:`build_cost` imports the
+classifier registry when it first needs a classifier).
 """
 
 import importlib
 from typing import Any
 
-from vp2.planning.costs import (
-    ClassifierCost,
-    CostTerm,
-    EnsembleCost,
-    PerceptualCost,
-    PixelSSE,
-    WeightedCost,
-    choose_members,
-    classifier_cost,
-    ensemble_disagreement,
-    pixel_sse,
-    robodesk_cost,
-    tabletop_cost,
-)
-from vp2.planning.optimizers import (
-    CEM,
-    CEMGD,
-    LBFGS,
-    MPPI,
-    OPTIMIZERS,
-    NotDifferentiableError,
-    Objective,
-    Optimizer,
-    OptimizerInfo,
-    shift_plan,
-)
-from vp2.planning.samplers import ActionSampler, CorrelatedNoiseSampler, GaussianSampler
-
-#: Where the names imported on first use live.
+#: Where each name lives; every one is imported on first use.
 _LAZY_MODULES: dict[str, list[str]] = {
+    "vp2.planning.config": ["PlannerConfig"],
+    "vp2.planning.costs": (
+        "COST_MODES ClassifierCost CostKind CostMode CostTerm EnsembleCost PerceptualCost PixelSSE "
+        "WeightedCost build_cost choose_members classifier_cost ensemble_disagreement pixel_sse "
+        "robodesk_cost tabletop_cost"
+    ).split(),
+    "vp2.planning.optimizers": (
+        "CEM CEMGD LBFGS MPPI OPTIMIZERS NotDifferentiableError Objective Optimizer OptimizerInfo "
+        "shift_plan"
+    ).split(),
+    "vp2.planning.samplers": "ActionSampler CorrelatedNoiseSampler GaussianSampler".split(),
     "vp2.planning.agent": (
         "Agent Observation PlanningAgent RandomActions SimulatorStateModel check_agent_for_env"
     ).split(),
     "vp2.planning.planner": (
-        "COST_MODES GRADIENT_OPTIMIZERS CostKind CostMode PlannerConfig build_cost "
-        "build_optimizer planner_settings"
+        "GRADIENT_OPTIMIZERS build_optimizer planner_settings"
     ).split(),
 }
 _LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}

@@ -25,15 +25,9 @@ from torch import Tensor
 
 from vp2.classifiers.registry import CLASSIFIERS, ClassifierRegistry
 from vp2.models.contract import VideoPredictionModel, checked, predict_in_chunks, unwrap
+from vp2.planning.costs import COST_MODES, CostMode, build_cost
 from vp2.planning.optimizers import shift_plan
-from vp2.planning.planner import (
-    COST_MODES,
-    CostMode,
-    PlannerConfig,
-    build_cost,
-    build_optimizer,
-    planner_settings,
-)
+from vp2.planning.planner import PlannerConfig, build_optimizer, planner_settings
 from vp2.utils.tensors import images_to_float
 
 
@@ -65,7 +59,7 @@ class Agent(Protocol):
         name: Identity in results (``"planning"``, ``"random_actions"``).
         action_dim: ``A``; must equal the environment's.
         image_size: Side of the frames the trial renders for it.
-        cost_kind: :data:`vp2.planning.planner.CostKind` of the current trial (set by ``reset``).
+        cost_kind: :data:`vp2.planning.costs.CostKind` of the current trial (set by ``reset``).
     """
 
     name: str

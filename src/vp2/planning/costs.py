@@ -11,6 +11,12 @@ optimizer's score with ``score = -cost``. The benchmark's costs are
 * RoboDesk: ``0.5 × PixelSSE + 10 × ClassifierCost`` (:func:`robodesk_cost`), i.e. the score is
   ``-0.5 × SSE + 10 × Σ_t logit``.
 
+:func:`build_cost` builds a task's cost from its registry entry (``Task.cost``, its weights and
+classifier key, :data:`vp2.envs.tasks.TASKS`), with the RoboDesk classifier looked up in
+:data:`vp2.classifiers.registry.CLASSIFIERS`; when a task has none it falls back to the pixel
+term alone and reports the cost kind ``"pixel_only"``, which every trial record carries, so
+results with and without classifiers are never silently mixed.
+
 Everything here is plain differentiable torch, so gradient-based planners can backpropagate
 through a cost. Goals are ``(C, H, W)`` (the same goal image for every predicted frame, as in
 the benchmark) or ``(T, C, H, W)``; they are moved to the frames' device and dtype on use.
@@ -19,11 +25,16 @@ the benchmark) or ``(T, C, H, W)``; they are moved to the frames' device and dty
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Literal
 
 import torch
 from torch import Tensor
 
 from vp2 import spec
+from vp2.envs.tasks import get_task
+
+if TYPE_CHECKING:
+    from vp2.classifiers.registry import ClassifierRegistry
 
 #: ``term(frames (N, T, C, H, W)) -> cost (N,)``.
 CostTerm = Callable[[Tensor], Tensor]
@@ -204,7 +215,7 @@ class WeightedCost:
 
 def tabletop_cost(goal: Tensor) -> WeightedCost:
     """SPEC §6 tabletop cost: the squared pixel error to the goal, summed over frames."""
-    return WeightedCost([(1.0, PixelSSE(goal))])
+    return WeightedCost([(spec.TABLETOP_PIXEL_WEIGHT, PixelSSE(goal))])
 
 
 def robodesk_cost(
@@ -217,6 +228,68 @@ def robodesk_cost(
             (spec.ROBODESK_CLASSIFIER_WEIGHT, ClassifierCost(classifier, max_batch_size)),
         ]
     )
+
+
+#: How a trial's plans were scored. ``"pixel"``: tabletop SPEC cost; ``"pixel+classifier"``:
+#: RoboDesk SPEC cost; ``"pixel_only"``: RoboDesk without its classifier (not the SPEC cost);
+#: ``"none"``: no cost (the random-action baseline).
+CostKind = Literal["pixel", "pixel+classifier", "pixel_only", "none"]
+#: ``"auto"``: the SPEC cost, falling back to pixel-only where a RoboDesk task has no
+#: classifier; ``"spec"``: the SPEC cost or an error; ``"pixel_only"``: never a classifier.
+CostMode = Literal["auto", "spec", "pixel_only"]
+COST_MODES: tuple[str, ...] = ("auto", "spec", "pixel_only")
+
+
+def build_cost(
+    task: str,
+    goal: Tensor,
+    mode: CostMode = "auto",
+    classifiers: ClassifierRegistry | None = None,
+    device: torch.device | None = None,
+) -> tuple[WeightedCost, CostKind]:
+    """The planning cost of a task (SPEC §6), in the form its registry entry names, and its kind.
+
+    Args:
+        task: Registered task name.
+        goal: ``(3, H, W)`` goal image in [0, 1].
+        mode: See :data:`CostMode`.
+        classifiers: Where classifiers are looked up (default:
+            :data:`vp2.classifiers.registry.CLASSIFIERS`).
+        device: Device the classifier is loaded on (default: the goal's).
+
+    Returns:
+        The cost and its :data:`CostKind`.
+
+    Raises:
+        ValueError: for an unknown mode, or ``mode="spec"`` on a RoboDesk task without a
+            registered classifier.
+    """
+    if mode not in COST_MODES:
+        raise ValueError(f"unknown cost mode {mode!r}; choose one of {', '.join(COST_MODES)}")
+    form = get_task(task)
+    pixel_term = (form.pixel_weight, PixelSSE(goal))
+    if form.cost == "pixel":
+        return WeightedCost([pixel_term]), "pixel"
+    if classifiers is None:
+        # Imported on use: registering the shipped classifiers is not needed for the costs'
+        # math, and `import vp2.planning` stays free of the classifiers package.
+        from vp2.classifiers.registry import CLASSIFIERS
+
+        classifiers = CLASSIFIERS
+    classifier = None
+    if mode != "pixel_only":
+        classifier = classifiers.get(form.classifier, device or goal.device)
+    if classifier is not None:
+        classifier_term = (form.classifier_weight, ClassifierCost(classifier))
+        return WeightedCost([pixel_term, classifier_term]), "pixel+classifier"
+    if mode == "spec":
+        raise ValueError(
+            f"{task}: no success classifier is registered (vp2.classifiers.CLASSIFIERS), so the "
+            "SPEC cost cannot be built; use cost mode 'auto' or 'pixel_only' to plan on pixels"
+        )
+    # The cost without its classifier term: the pixel term keeps its SPEC weight so that MPPI's
+    # γ sees the same score scale as in the full cost.
+    return WeightedCost([pixel_term]), "pixel_only"
 
 
 def ensemble_disagreement(predictions: Tensor) -> Tensor:

@@ -8,10 +8,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from vp2.benchmark.results import Summary, summarize
-from vp2.benchmark.runner import outside_note, trials_of_run
+from vp2.benchmark.run_dir import RunDir
 from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
 
 PathLike = str | os.PathLike[str]
@@ -24,14 +22,17 @@ class RunView:
     Attributes:
         run_dir: The directory.
         label: Model label (unique among the report's runs).
-        config: The ``config`` mapping of ``config.yaml`` (empty if the file is missing).
+        config: The ``config`` mapping of ``config.yaml`` in the flat form, the planner's
+            fields beside the others (:meth:`~vp2.benchmark.run_dir.RunDir.settings`; empty
+            if the file is missing).
         deviations: Its departures from the SPEC protocol.
         records: Trial records.
         summary: Scores, normalised when an oracle run is known.
         is_oracle: Whether the run is a simulator-oracle run.
         oracle_source: Where the normalisation came from (``None``: not normalised).
         outside: The note on trials in the directory that its config does not cover, which
-            are not counted (:func:`vp2.benchmark.runner.trials_of_run`); ``None``: none.
+            are not counted (:meth:`~vp2.benchmark.run_dir.RunDir.split_trials`); ``None``:
+            none.
     """
 
     run_dir: Path
@@ -56,14 +57,6 @@ def model_label(config: Mapping[str, Any]) -> str:
     return spec
 
 
-def _read_config(run_dir: Path) -> tuple[dict[str, Any], list[str]]:
-    path = run_dir / "config.yaml"
-    if not path.is_file():
-        return {}, []
-    data = yaml.safe_load(path.read_text()) or {}
-    return dict(data.get("config") or {}), list(data.get("spec_deviations") or [])
-
-
 def load_runs(
     run_dirs: Sequence[PathLike], labels: Sequence[str | None] | None = None
 ) -> list[RunView]:
@@ -84,22 +77,20 @@ def load_runs(
         )
     runs = []
     for i, d in enumerate(run_dirs):
-        run_dir = Path(d)
-        if not (run_dir / "trials.jsonl").is_file():
-            raise FileNotFoundError(f"{run_dir}: no trials.jsonl (not a vp2 run directory)")
-        config, deviations = _read_config(run_dir)
-        records, outside = trials_of_run(run_dir)
-        is_oracle = is_oracle_config(config)
+        run = RunDir(d)
+        run.check_is_run()
+        config = run.settings()
+        records, note = run.counted_trials()
         runs.append(
             RunView(
-                run_dir,
+                run.path,
                 (labels[i] if labels else None) or model_label(config),
                 config,
-                deviations,
+                run.deviations(),
                 records,
                 summarize(records),
-                is_oracle,
-                outside=outside_note(run_dir, outside) if outside else None,
+                is_oracle_config(config),
+                outside=note,
             )
         )
     counts: dict[str, int] = {}

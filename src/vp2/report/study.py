@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from vp2.benchmark.results import is_ok, summarize
-from vp2.benchmark.runner import outside_note, trials_of_run
+from vp2.benchmark.run_dir import RunDir
 from vp2.report.charts import scatter_plot
 from vp2.report.correlation import Correlation, rank_correlation
 from vp2.utils.io import json_safe
@@ -85,7 +85,7 @@ class StudyEntry:
         metrics: Environment (or :data:`ANY_ENV`) -> raw metric values of that ``metrics.json``.
         metrics_files: The files read.
         outside: The note on trials in the run directory that its config does not cover,
-            which are not counted (:func:`vp2.benchmark.runner.trials_of_run`).
+            which are not counted (:meth:`~vp2.benchmark.run_dir.RunDir.split_trials`).
     """
 
     label: str
@@ -118,9 +118,8 @@ def load_entry(
         FileNotFoundError: a run directory without ``trials.jsonl`` or a missing metrics file.
         ValueError: two metrics files of the same environment.
     """
-    run_dir = Path(run_dir)
-    if not (run_dir / "trials.jsonl").is_file():
-        raise FileNotFoundError(f"{run_dir}: no trials.jsonl (not a vp2 run directory)")
+    run = RunDir(run_dir)
+    run.check_is_run()
     files = [metrics_json] if isinstance(metrics_json, (str, os.PathLike)) else metrics_json
     metrics: dict[str, dict[str, float]] = {}
     paths = []
@@ -134,9 +133,8 @@ def load_entry(
             raise ValueError(f"entry {label!r}: two metrics files for environment {env!r}")
         metrics[env] = {k: v for k, v in data.get("metrics", {}).items() if v is not None}
         paths.append(path)
-    records, outside = trials_of_run(run_dir)
-    note = outside_note(run_dir, outside) if outside else None
-    return StudyEntry(label, run_dir, records, metrics, paths, note)
+    records, note = run.counted_trials()
+    return StudyEntry(label, run.path, records, metrics, paths, note)
 
 
 # --------------------------------------------------------------------------- the study

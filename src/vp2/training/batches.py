@@ -8,6 +8,7 @@ bit-identical to an uninterrupted one without saving any sampler state.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from typing import Any
 
@@ -18,6 +19,8 @@ from torch.utils.data import DataLoader, Sampler
 
 from vp2.data.loader import ClipDataset
 from vp2.utils.tensors import images_to_float
+
+log = logging.getLogger(__name__)
 
 
 def seed_torch(seed: int) -> None:
@@ -67,7 +70,11 @@ class StepBatchSampler(Sampler[list[int]]):
 
 
 def validation_batches(dataset: ClipDataset, count: int, batch_size: int) -> list[dict[str, Any]]:
-    """``count`` batches of clips spread evenly over the validation set (fixed across steps)."""
+    """``count`` batches of clips spread evenly over the validation set (fixed across steps);
+    all its clips, with a warning, where it has fewer."""
+    if count * batch_size > len(dataset):
+        log.warning("--eval-batches %d x --batch-size %d: the validation split has %d clips; "
+                    "validating on those %d", count, batch_size, len(dataset), len(dataset))
     n = min(len(dataset), count * batch_size)
     idx = np.linspace(0, len(dataset) - 1, n).round().astype(int)
     loader = DataLoader(torch.utils.data.Subset(dataset, idx.tolist()), batch_size=batch_size)

@@ -15,30 +15,69 @@ needs on top::
     metrics        the latest validation metrics
     train_seconds  training wall time of all sessions up to this checkpoint (the time budget)
 
-:meth:`vp2.training.setup.TrainingRun.save_checkpoint` writes one; :mod:`vp2.training.export`
-strips the resume state for shipping.
+:func:`run_payload` makes one (the ``model`` entry, the layout and the format are
+:mod:`vp2.models.checkpoint`'s), :meth:`vp2.training.setup.TrainingRun.save_checkpoint` writes
+it; :mod:`vp2.training.export` keeps :data:`EXPORT_KEYS` for shipping.
 """
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 
-CHECKPOINT_DIR = "checkpoints"
+from vp2.models.checkpoint import (
+    CHECKPOINT_DIR,
+    checkpoint_path,
+    list_checkpoints,
+    model_entry,
+)
+
+if TYPE_CHECKING:
+    from vp2.models.base import VideoPredictor
+
+__all__ = [
+    "CHECKPOINT_DIR",
+    "EXPORT_KEYS",
+    "checkpoint_path",
+    "list_checkpoints",
+    "prune_checkpoints",
+    "restore_rng_state",
+    "rng_state",
+    "run_payload",
+]
+
+#: The entries an inference-only (exported) checkpoint keeps, in the order written: all but
+#: the optimizer, scaler and RNG states that only a resumed run needs.
+EXPORT_KEYS = ("model", "step", "train_config", "dataset", "metrics", "train_seconds")
 
 
-def checkpoint_path(out_dir: str | os.PathLike[str], step: int) -> Path:
-    """Where a run writes the checkpoint of ``step``."""
-    return Path(out_dir) / CHECKPOINT_DIR / f"step_{step:08d}.pt"
-
-
-def list_checkpoints(out_dir: str | os.PathLike[str]) -> list[Path]:
-    """A run's checkpoints, oldest first (zero-padded step numbers sort in step order)."""
-    directory = Path(out_dir) / CHECKPOINT_DIR
-    return sorted(directory.glob("step_*.pt")) if directory.is_dir() else []
+def run_payload(
+    model: VideoPredictor,
+    *,
+    step: int,
+    optimizer: torch.optim.Optimizer,
+    scaler: torch.amp.GradScaler,
+    noise: torch.Generator,
+    train_config: dict[str, Any],
+    dataset: dict[str, Any],
+    metrics: dict[str, float],
+    train_seconds: float,
+) -> dict[str, Any]:
+    """A training run's checkpoint of ``step`` (for
+    :func:`~vp2.models.checkpoint.write_model_checkpoint`), its entries in the order above."""
+    return {
+        "model": model_entry(model),
+        "step": step,
+        "optimizer": optimizer.state_dict(),
+        "scaler": scaler.state_dict() if scaler.is_enabled() else {},
+        "rng": rng_state(noise),
+        "train_config": train_config,
+        "dataset": dataset,
+        "metrics": metrics,
+        "train_seconds": train_seconds,
+    }
 
 
 def prune_checkpoints(out_dir: str | os.PathLike[str], keep: int) -> None:

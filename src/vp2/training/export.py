@@ -11,9 +11,9 @@ import os
 from pathlib import Path
 
 from vp2.models.checkpoint import read_model_checkpoint, write_model_checkpoint
+from vp2.training.checkpoint import EXPORT_KEYS
 
-#: Entries an inference-only checkpoint keeps (no optimizer, scaler or RNG states).
-EXPORT_KEYS = ("model", "step", "train_config", "dataset", "metrics", "train_seconds")
+__all__ = ["EXPORT_KEYS", "export_checkpoint"]
 
 
 def export_checkpoint(

@@ -29,7 +29,7 @@ from vp2.training.checkpoint import (
     list_checkpoints,
     prune_checkpoints,
     restore_rng_state,
-    rng_state,
+    run_payload,
 )
 from vp2.training.config import TrainConfig, check_resumable
 from vp2.training.logger import MetricsLogger
@@ -98,21 +98,17 @@ class TrainingRun:
         and returns its path."""
         path = write_model_checkpoint(
             checkpoint_path(self.out_dir, step),
-            {
-                "model": {
-                    "name": self.model.name,
-                    "config": self.model.config_dict(),
-                    "state_dict": self.model.state_dict(),
-                },
-                "step": step,
-                "optimizer": self.optimizer.state_dict(),
-                "scaler": self.scaler.state_dict() if self.scaler.is_enabled() else {},
-                "rng": rng_state(self.noise),
-                "train_config": self.config.to_dict(),
-                "dataset": self.dataset_info,
-                "metrics": self.valid_metrics,
-                "train_seconds": self.train_seconds,
-            },
+            run_payload(
+                self.model,
+                step=step,
+                optimizer=self.optimizer,
+                scaler=self.scaler,
+                noise=self.noise,
+                train_config=self.config.to_dict(),
+                dataset=self.dataset_info,
+                metrics=self.valid_metrics,
+                train_seconds=self.train_seconds,
+            ),
         )
         prune_checkpoints(self.out_dir, self.config.keep_checkpoints)
         return path

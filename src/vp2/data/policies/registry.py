@@ -1,18 +1,20 @@
 """The data streams and the policy of each: which env a stream is collected in, its noise and
 its scripted policy (re-exported by :mod:`vp2.data.policies`, whose docstring describes them).
 
-The per-environment policy modules are imported only when a policy is made: RoboDesk's loads
-MuJoCo and the tabletop's robosuite.
+A task's scripted policy is the one its registry entry names (``Task.policy``, looked up in the
+table of its environment's policy module). The per-environment policy modules are imported only
+when a policy is made: RoboDesk's loads MuJoCo and the tabletop's robosuite.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from vp2.data.policies.base import ROBODESK_NOISE, TABLETOP_NOISE, NoisyPolicy, ScriptedPolicy
-from vp2.envs import ROBODESK_TASKS, TABLETOP_TASKS, make_env, split_name
+from vp2.envs import ROBODESK_TASKS, TABLETOP_TASKS, get_task, make_env, split_name
 from vp2.envs.base import Env
 
 TABLETOP_STREAM = "tabletop/push_random_object"
@@ -44,16 +46,38 @@ def data_noise_sigma(stream: str, stream_index: int) -> tuple[float, ...] | floa
     return ROBODESK_NOISE[stream_index % 2]
 
 
+#: ``factory(env, rng, target) -> policy``: a task's scripted policy given the task's target.
+PolicyFactory = Callable[[Env, np.random.Generator, Any], ScriptedPolicy]
+
+
+def _robodesk_policies() -> Mapping[str, PolicyFactory]:
+    from vp2.data.policies.robodesk import ROBODESK_POLICIES
+
+    return ROBODESK_POLICIES
+
+
+def _tabletop_policies() -> Mapping[str, PolicyFactory]:
+    from vp2.data.policies.tabletop import TABLETOP_POLICIES
+
+    return TABLETOP_POLICIES
+
+
+#: Per environment, its table of scripted policies by the key a task names (``Task.policy``),
+#: loaded on first use.
+POLICY_TABLES: dict[str, Callable[[], Mapping[str, PolicyFactory]]] = {
+    "robodesk": _robodesk_policies,
+    "tabletop": _tabletop_policies,
+}
+
+
 def make_task_policy(env: Env, rng: np.random.Generator) -> ScriptedPolicy:
-    """The noise-free scripted policy that solves ``env``'s task category (for the task suite)."""
-    env_name, task = split_name(env.name)
-    if env_name == "robodesk":
-        from vp2.data.policies.robodesk import make_robodesk_policy
-
-        return make_robodesk_policy(env, rng)
-    from vp2.data.policies.tabletop import make_tabletop_policy
-
-    return make_tabletop_policy(env, rng, target_object=task.removeprefix("push_"))
+    """The noise-free scripted policy that solves ``env``'s task category (for the task suite):
+    the policy its :class:`~vp2.envs.tasks.Task` names, aimed at the task's target."""
+    task = get_task(env.name)
+    table = POLICY_TABLES[task.env]()
+    if task.policy not in table:
+        raise ValueError(f"{task.name}: no scripted policy {task.policy!r} in the {task.env} table")
+    return table[task.policy](env, rng, task.target)
 
 
 def make_policy(

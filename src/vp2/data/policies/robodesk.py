@@ -21,12 +21,15 @@ Facts about the RoboDesk arm that shape them (measured, see ``docs/robodesk.md``
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 from vp2.data.policies.base import ROBODESK_NOISE, NoisyPolicy, ScriptedPolicy
 from vp2.envs.base import Env
 from vp2.envs.robodesk import TASKS, RoboDeskEnv
+from vp2.envs.tasks import get_task
 
 #: End-effector displacement per env step for a unit action (m), measured on free motion.
 EE_SPEED = 0.082
@@ -202,7 +205,7 @@ class OpenDrawerPolicy(RoboDeskPolicy):
     Known limitation: this succeeds on only ~12% of the package's initial states. With the
     gripper pitched forward (most initial arm poses), the arm cannot reach close enough to its
     base to pull the bar far: the wall hook does the opening, and it only fits when the drawer
-    starts open by more than ~8.5 cm. See docs/robodesk.md.
+    starts open by more than ~8.5 cm. See docs/findings/environments.md.
     """
 
     # Drawer geometry at drawer joint q = 0 (world frame); everything moves with +q along y.
@@ -348,20 +351,25 @@ class PushOffTablePolicy(RoboDeskPolicy):
         return self.action(xyz, wrist=wrist, gripper=CLOSED)
 
 
+#: ``factory(env, rng, target) -> policy`` by the policy key a RoboDesk task names
+#: (``Task.policy`` of :data:`vp2.envs.tasks.TASKS`), given the task's ``target`` (button colour
+#: or object).
+ROBODESK_POLICIES: dict[str, Callable[[Env, np.random.Generator, Any], RoboDeskPolicy]] = {
+    "push_button": lambda env, rng, target: PushButtonPolicy(env, rng, color=target),
+    "open_slide": lambda env, rng, _: OpenSlidePolicy(env, rng),
+    "open_drawer": lambda env, rng, _: OpenDrawerPolicy(env, rng),
+    "push_off_table": lambda env, rng, target: PushOffTablePolicy(env, rng, obj=target),
+}
+
+
 def make_robodesk_policy(env: Env, rng: np.random.Generator) -> RoboDeskPolicy:
-    """The noise-free scripted policy of ``env``'s task."""
+    """The noise-free scripted policy of ``env``'s task (its registry entry names it)."""
     if not isinstance(env, RoboDeskEnv):
         raise TypeError(f"make_robodesk_policy needs a RoboDeskEnv, got {type(env).__name__}")
-    task = env.task
-    if task.startswith("push_"):
-        return PushButtonPolicy(env, rng, color=task.removeprefix("push_"))
-    if task == "open_slide":
-        return OpenSlidePolicy(env, rng)
-    if task == "open_drawer":
-        return OpenDrawerPolicy(env, rng)
-    if task.endswith("_off_table"):
-        return PushOffTablePolicy(env, rng, obj=task.removesuffix("_off_table"))
-    raise ValueError(f"no scripted policy for RoboDesk task {task!r}; tasks: {TASKS}")
+    task = get_task(env.name)
+    if task.policy not in ROBODESK_POLICIES:
+        raise ValueError(f"no scripted policy for RoboDesk task {env.task!r}; tasks: {TASKS}")
+    return ROBODESK_POLICIES[task.policy](env, rng, task.target)
 
 
 def robodesk_noise_sigma(trajectory_index: int) -> float:
@@ -391,6 +399,7 @@ __all__ = [
     "OpenSlidePolicy",
     "PushButtonPolicy",
     "PushOffTablePolicy",
+    "ROBODESK_POLICIES",
     "RoboDeskPolicy",
     "make_noisy_robodesk_policy",
     "make_robodesk_policy",

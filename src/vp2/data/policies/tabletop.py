@@ -35,6 +35,9 @@ policy in :class:`~vp2.data.policies.base.NoisyPolicy` (``vp2.data.policies.make
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from vp2.data.policies.base import ScriptedPolicy
@@ -50,6 +53,7 @@ from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
 __all__ = [
     "DONE_TOLERANCE",
     "PUSH_DISTANCE",
+    "TABLETOP_POLICIES",
     "TARGET_REGION",
     "TabletopPushPolicy",
     "make_tabletop_policy",
@@ -413,3 +417,11 @@ def make_tabletop_policy(
     return TabletopPushPolicy(
         env, rng, target_object=target_object, clear_path=clear_path, push_distance=push_distance
     )
+
+
+#: ``factory(env, rng, target) -> policy`` by the policy key a tabletop
+#: :class:`~vp2.envs.tasks.Task` names (``Task.policy``), given the object it pushes.
+TabletopPolicyFactory = Callable[[TabletopEnv, np.random.Generator, Any], ScriptedPolicy]
+TABLETOP_POLICIES: dict[str, TabletopPolicyFactory] = {
+    "push_object": lambda env, rng, target: make_tabletop_policy(env, rng, target_object=target),
+}

@@ -27,7 +27,9 @@ need an objective whose scores carry a ``grad_fn`` back to the actions and raise
 
 ``base.py`` holds the contract (:class:`Optimizer`, :class:`OptimizerInfo`, the objective
 checks, :func:`shift_plan`); ``mppi.py``, ``cem.py`` and ``gradient.py`` (CEM-GD, L-BFGS) the
-optimizers.
+optimizers. Each optimizer class also owns its settings: :meth:`Optimizer.settings` turns a run's
+planner config, the env's σ and the task's sample count into its constructor arguments (what
+:func:`vp2.planning.planner.planner_settings` records in every trial).
 """
 
 from vp2.planning.optimizers.base import (

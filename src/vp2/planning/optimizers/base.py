@@ -8,12 +8,13 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from torch import Tensor
 
 from vp2 import spec
+from vp2.planning.config import PlannerConfig
 from vp2.planning.samplers import ACTION_HIGH, ACTION_LOW, ActionSampler, CorrelatedNoiseSampler
 
 #: ``objective(actions (N, H, A)) -> scores (N,)``, higher is better.
@@ -139,6 +140,34 @@ def shift_plan(plan: Tensor, steps: int = 1, pad: Literal["repeat", "zero"] = "r
 
 class Optimizer(abc.ABC):
     """Maximises a batched objective over action sequences ``(H, A)`` in ``[-1, 1]``."""
+
+    @classmethod
+    def settings(
+        cls, config: PlannerConfig, sigma: list[float], num_samples: int
+    ) -> dict[str, Any]:
+        """This optimizer's constructor arguments for one task, as plain data.
+
+        Called by :func:`vp2.planning.planner.planner_settings`, whose result every trial
+        record carries: the arguments of :meth:`own_settings`, then ``num_iterations`` where
+        the config sets it, then the config's ``options`` (which override).
+
+        Args:
+            config: The run's planner.
+            sigma: Noise scale per action dimension (the config's, else the env's).
+            num_samples: The task's planner sample count (``Task.num_samples``).
+        """
+        kwargs = cls.own_settings(config, sigma, num_samples)
+        if config.num_iterations is not None:
+            kwargs["num_iterations"] = config.num_iterations
+        kwargs.update(config.options)
+        return kwargs
+
+    @classmethod
+    def own_settings(
+        cls, config: PlannerConfig, sigma: list[float], num_samples: int
+    ) -> dict[str, Any]:
+        """The arguments only this optimizer takes from the config and the task (none here)."""
+        return {}
 
     @abc.abstractmethod
     def optimize(

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from torch import Tensor
 
 from vp2 import spec
+from vp2.planning.config import PlannerConfig
 from vp2.planning.optimizers.base import (
     Objective,
     OptimizerInfo,
@@ -63,6 +65,14 @@ class CEM(SamplingOptimizer):
             raise ValueError(f"num_elites must be >= 1, got {num_elites}")
         super().__init__(sigma, num_samples, num_iterations, sampler)
         self.num_elites = num_elites
+
+    @classmethod
+    def own_settings(
+        cls, config: PlannerConfig, sigma: list[float], num_samples: int
+    ) -> dict[str, Any]:
+        """σ and the config's sample count (else the task's)."""
+        samples = config.num_samples if config.num_samples is not None else num_samples
+        return {"sigma": sigma, "num_samples": samples}
 
     def search(
         self,

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from torch import Tensor
 
+from vp2.planning.config import PlannerConfig
 from vp2.planning.optimizers.base import (
     Objective,
     Optimizer,
@@ -88,6 +89,17 @@ class CEMGD(CEM):
         self.betas = betas
         self.eps = eps
         self._first_call = True
+
+    @classmethod
+    def own_settings(
+        cls, config: PlannerConfig, sigma: list[float], num_samples: int
+    ) -> dict[str, Any]:
+        """σ, and the config's sample count only where it sets one: the task's count is for
+        MPPI, CEM-GD keeps its own ``num_samples_first`` / ``num_samples`` defaults."""
+        kwargs: dict[str, Any] = {"sigma": sigma}
+        if config.num_samples is not None:
+            kwargs["num_samples"] = config.num_samples
+        return kwargs
 
     def reset(self) -> None:
         """Makes the next call use ``num_samples_first`` CEM samples again."""
@@ -225,6 +237,19 @@ class LBFGS(Optimizer):
         self.tolerance_grad = tolerance_grad
         self.line_search_fn = line_search_fn
         self.boundary_eps = boundary_eps
+
+    @classmethod
+    def settings(
+        cls, config: PlannerConfig, sigma: list[float], num_samples: int
+    ) -> dict[str, Any]:
+        """No σ and no sample count (one sequence, no sampling); ``options`` only.
+
+        Raises:
+            ValueError: if the config sets ``num_iterations``: L-BFGS has none.
+        """
+        if config.num_iterations is not None:
+            raise ValueError("lbfgs has no sampling iterations; set options={'num_steps': ...}")
+        return super().settings(config, sigma, num_samples)
 
     def optimize(
         self, objective: Objective, initial_mean: Tensor, generator: torch.Generator

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from torch import Tensor
 
 from vp2 import spec
+from vp2.planning.config import PlannerConfig
 from vp2.planning.optimizers.base import (
     Objective,
     OptimizerInfo,
@@ -64,6 +66,14 @@ class MPPI(SamplingOptimizer):
             raise ValueError(f"gamma must be >= 0, got {gamma}")
         super().__init__(sigma, num_samples, num_iterations, sampler)
         self.gamma = gamma
+
+    @classmethod
+    def own_settings(
+        cls, config: PlannerConfig, sigma: list[float], num_samples: int
+    ) -> dict[str, Any]:
+        """σ, the config's sample count (else the task's) and γ."""
+        samples = config.num_samples if config.num_samples is not None else num_samples
+        return {"sigma": sigma, "num_samples": samples, "gamma": config.gamma}
 
     def optimize(
         self, objective: Objective, initial_mean: Tensor, generator: torch.Generator

@@ -1,0 +1,1 @@
+"""The model comparison: train, measure and plan with every model family, then publish."""

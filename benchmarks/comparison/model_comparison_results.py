@@ -1,0 +1,336 @@
+"""``results.md`` of ``benchmarks.comparison.model_comparison``, from the files its stages wrote.
+
+:func:`results_markdown` reads only the comparison's output folder: ``comparison.json`` (the
+settings and the command), ``train/<model>.json``, ``conditioning/<family>.json``,
+``metrics/<name>/metrics.json``, ``runs/<name>/summary.json``, ``study/study.json`` and
+``report.png``. So the page can be rebuilt from a copied folder, and no number in it comes
+from anywhere else.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from vp2.report.study import ALL_TASKS, STUDY_METRICS
+
+#: The metrics table's columns: key in ``metrics.json``, title, scale, format.
+METRIC_COLUMNS = (
+    ("mse", "MSE", 1, ".5f"),
+    ("psnr", "PSNR (dB)", 1, ".2f"),
+    ("ssim", "SSIM ×100", 100, ".2f"),
+    ("lpips_alex", "LPIPS-Alex ×100", 100, ".2f"),
+    ("lpips_vgg", "LPIPS-VGG ×100", 100, ".2f"),
+    ("fvd", "FVD", 1, ".1f"),
+)
+
+
+def _read(path: Path) -> Any:
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _pct(x: float | None) -> str:
+    return "–" if x is None else f"{100 * x:.0f}"
+
+
+def _num(x: float | None) -> str:
+    return "–" if x is None else f"{x:.2f}"
+
+
+def _success(mean: float | None, low: float | None, high: float | None) -> str:
+    return f"{_pct(mean)} [{_pct(low)}, {_pct(high)}]"
+
+
+def _trials_on_disk(run_dir: Path) -> int:
+    path = run_dir / "trials.jsonl"
+    return len(path.read_text().splitlines()) if path.is_file() else 0
+
+
+def results_markdown(
+    out: Path,
+    screenshot_note: str | None,
+    pending: Sequence[str] = (),
+    image: str = "report.png",
+    notes: str | None = None,
+) -> str:
+    """The page: budget, success per task, normalised means, action conditioning, metrics,
+    the study and the report's screenshot (``screenshot_note``: why there is none; ``image``:
+    its link from where the page is written). ``pending``: runs not finished yet (the page
+    then says so at the top, and their columns say "pending"). ``notes``: the link, from where
+    the page is written, to the Markdown file that reads the numbers; the page gets a
+    "Reading" section after the study that points there."""
+    s = json.loads((out / "comparison.json").read_text())
+    lines = [
+        "# Model comparison: five families at one training budget, judged by control",
+        "",
+        f"Written {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')} "
+        f"by `python -m benchmarks.comparison.model_comparison` (vp2 {s['vp2_version']}, torch "
+        f"{s['torch_version']}); every number below is read from the files under `{out}`.",
+        "",
+        "Rebuild (the same command resumes an interrupted build; on a finished folder it only "
+        "rewrites the study, the report and this page):",
+        "",
+        "```bash",
+        s["command"],
+        "```",
+        "",
+    ]
+    if pending:
+        counts = ", ".join(
+            f"{name} ({_trials_on_disk(out / 'runs' / name)} trials on disk)" for name in pending
+        )
+        lines += [
+            f"**Incomplete**: the runs of {counts} are not finished; their columns, the study and "
+            "the report leave them out until they are. The command above resumes them.",
+            "",
+        ]
+    lines += budget_lines(out, s)
+    lines += success_lines(out, s)
+    lines += conditioning_lines(out, s)
+    lines += metrics_lines(out, s)
+    lines += study_lines(out / "study" / "study.json")
+    if notes:
+        lines += ["", *reading_lines(notes)]
+    lines += ["", "## The report", ""]
+    if screenshot_note is None:
+        lines += [
+            "`report.html` is the `vp2 report` page of every run above; its top:",
+            "",
+            f"![vp2 report]({image})",
+        ]
+    else:
+        lines.append(
+            f"`report.html` is the `vp2 report` page of every run above ({screenshot_note})."
+        )
+    return "\n".join(lines) + "\n"
+
+
+def relative_link(target: Path, page: Path) -> str:
+    """The Markdown link from ``page`` to ``target`` (both relative to the working directory,
+    or both absolute)."""
+    return Path(os.path.relpath(target, page.parent)).as_posix()
+
+
+def reading_lines(notes: str) -> list[str]:
+    """The "Reading" section: a pointer to the notes file (``notes``: its link)."""
+    return [
+        "## Reading",
+        "",
+        f"What these numbers say is written apart from this generated page: [{notes}]({notes}).",
+    ]
+
+
+def budget_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    lines = [
+        "## Training budget",
+        "",
+        f"Dataset `{s['data']}`, batch {s['batch_size']}, seed 0. Every family got "
+        f"**{s['budget_minutes']:g} minutes** of training wall time (`vp2 train --max-minutes`: "
+        "optimisation steps with their data loading, summed over resumed sessions; validation "
+        "and checkpoint writing left out. MaskViT's budget is split 1/3 tokenizer, 2/3 "
+        "transformer). Steps reached depend on the device and its load.",
+        "",
+        "| family | model (preset) | parameters | budget (min) | minutes used | steps reached "
+        "| device | threads |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for family in s["families"]:
+        for stage in s["family_stages"][family]:
+            r = _read(out / "train" / f"{stage['model']}.json")
+            overrides = "".join(f" {k}={v}" for k, v in stage["overrides"])
+            name = f"{stage['model']} ({stage['preset']}{overrides})"
+            if r is None:
+                lines.append(f"| {family} | {name} | – | – | – | – | – | – |")
+                continue
+            params = "–" if r.get("parameters") is None else f"{r['parameters'] / 1e6:.2f} M"
+            steps = f"{r['step']:,}" + ("" if r["budget_reached"] else " (budget not reached)")
+            lines.append(
+                f"| {family} | {name} | {params} | {r['budget_minutes']:.3g} | "
+                f"{r['train_minutes']:.3g} | {steps} | {r['device']} | {r['threads'] or '–'} |"
+            )
+    for label, spec in s.get("extra_models", {}).items():
+        lines.append(f"| {label} | `{spec}` | – | not trained here | – | – | – | – |")
+    return [*lines, ""]
+
+
+def success_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    names = s["run_names"]
+    summaries = {name: _read(out / "runs" / name / "summary.json") for name in names}
+    tasks: list[str] = []
+    oracle: dict[str, float] = {}
+    for summary in summaries.values():
+        for row in summary["tasks"] if summary else []:
+            if row["task"] not in tasks:
+                tasks.append(row["task"])
+            if row.get("oracle_mean") is not None:
+                oracle[row["task"]] = row["oracle_mean"]
+    fewer = "".join(
+        f" ({name}: seed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))} only, "
+        "`--seeds-for`)"
+        for name, seeds in s.get("seeds_for", [])
+    )
+    lines = [
+        "## Success per task",
+        "",
+        f"`vp2 run` on {', '.join(s['tasks'])}: the first {s['num_instances']} instance(s) of "
+        f"each task, seeds {', '.join(map(str, s['seeds']))}{fewer}, MPPI with {s['num_samples']} "
+        f"planner samples (SPEC: 200, 800 for open_slide/open_drawer), {s['num_steps']} control "
+        "steps. Cell: success % mean over seeds [min, max] (trials). The shipped oracle's column "
+        "is its own measurement (how: the first note), not a run of this comparison.",
+        "",
+        "| task | " + " | ".join(names) + " | oracle (shipped) |",
+        "|---" * (len(names) + 2) + "|",
+    ]
+    for task in tasks:
+        cells = []
+        for name in names:
+            if summaries[name] is None:
+                cells.append("pending")
+                continue
+            row = next((r for r in summaries[name]["tasks"] if r["task"] == task), None)
+            cells.append(
+                "–" if row is None
+                else f"{_success(row['mean'], row['min'], row['max'])} ({row['num_trials']})"
+            )  # fmt: skip
+        lines.append(f"| {task} | " + " | ".join(cells) + f" | {_pct(oracle.get(task))} |")
+    means, normalised = [], []
+    for x in summaries.values():
+        x = x or {}
+        means.append(f"**{_pct(x.get('mean'))}** [{_pct(x.get('min'))}, {_pct(x.get('max'))}]")
+        normalised.append(
+            "–" if x.get("normalised") is None
+            else f"**{x['normalised']:.2f}** [{_num(x.get('normalised_min'))}, "
+            f"{_num(x.get('normalised_max'))}]"
+        )  # fmt: skip
+    oracle_mean = sum(oracle.values()) / len(oracle) if oracle else None
+    lines.append("| **mean over tasks** | " + " | ".join(means) + f" | {_pct(oracle_mean)} |")
+    lines.append("| **oracle-normalised mean** | " + " | ".join(normalised) + " | 1 |")
+    source = next(
+        (x["oracle_source"] for x in summaries.values() if x and x.get("oracle_source")), None
+    )
+    lines += ["", f"- normalised by the {source}" if source else "- not oracle-normalised"]
+    warnings = sorted({w for x in summaries.values() if x for w in x.get("warnings", [])})
+    return lines + [f"- {w}" for w in warnings] + [""]
+
+
+def conditioning_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    lines = [
+        "## Action conditioning (held-out clips)",
+        "",
+        "Prediction MSE under each clip's true actions and under another clip's "
+        f"(`benchmarks.studies.action_conditioning`: up to {s['conditioning_clips']} clips of "
+        f"the valid split, {s['conditioning_samples']} sampling seed(s)). A ratio shuffled / true "
+        "above 1: the model uses its actions. Interval: 95% bootstrap over clips; wins: clips "
+        "where the true actions gave the lower error (changing pixels); p: two-sided sign test.",
+        "",
+        "| family | ratio, all pixels [95% CI] | ratio, changing pixels [95% CI] | wins | p |",
+        "|---|---|---|---|---|",
+    ]
+    for family in [*s["families"], *s.get("extra_models", {})]:
+        r = _read(out / "conditioning" / f"{family}.json")
+        if r is None:
+            lines.append(f"| {family} | – | – | – | – |")
+            continue
+        a, m = r["all_pixels"], r["moving_pixels"]
+        lines.append(
+            f"| {family} | {a['ratio']:.3f} [{a['ci'][0]:.3f}, {a['ci'][1]:.3f}] | "
+            f"{m['ratio']:.3f} [{m['ci'][0]:.3f}, {m['ci'][1]:.3f}] | "
+            f"{m['wins']}/{m['n']} | {m['sign_p']:.2g} |"
+        )
+    return [*lines, ""]
+
+
+def metrics_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    lines = [
+        "## Perceptual metrics (held-out clips)",
+        "",
+        "`vp2 metrics` on a seeded sample of the valid split (the same clips for every model).",
+        "",
+        "| model | " + " | ".join(c[1] for c in METRIC_COLUMNS) + " | clips |",
+        "|---" * (len(METRIC_COLUMNS) + 2) + "|",
+    ]
+    skipped: set[str] = set()
+    for name in s["metrics_names"]:
+        result = _read(out / "metrics" / name / "metrics.json")
+        if result is None:
+            continue
+        values = result["metrics"]
+        skipped |= set(result["skipped"])
+        cells = [
+            "n/a" if values.get(k) is None else f"{values[k] * scale:{fmt}}"
+            for k, _, scale, fmt in METRIC_COLUMNS
+        ]
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {result['num_clips']} |")
+    notes = []
+    if skipped:
+        notes.append(
+            f"n/a: {', '.join(sorted(skipped))} skipped, the weight files are not on this "
+            "machine (docs/metrics.md says where they go)"
+        )
+    if not s["lpips"] or not s["fvd"]:
+        notes.append("n/a: LPIPS or FVD not asked for (`--lpips`, `--no-fvd` or `--smoke`)")
+    return lines + ([""] + [f"- {n}" for n in notes] if notes else []) + [""]
+
+
+def _metric(x: float | None) -> str:
+    """One decimal, as the metrics table prints FVD and SSIM ×100 (``49.99`` reads ``50.0``,
+    never ``50`` beside ``2.72``)."""
+    return "n/a" if x is None else f"{x:.1f}"
+
+
+def study_lines(path: Path) -> list[str]:
+    data = _read(path)
+    lines = ["## Metrics versus control (`vp2 study`)", ""]
+    if data is None:
+        return [*lines, "(no study)"]
+    labels = {m.key: m.label for m in STUDY_METRICS}
+    lines += [
+        f"All tasks (`{path.parent.name}/study.md` has the table of every task, "
+        "`scatter_*.svg` the plots):",
+        "",
+        "| model | " + " | ".join(labels.values()) + " | success % mean [min, max] | trials |",
+        "|---" * (len(labels) + 3) + "|",
+    ]
+    for row in data["rows"][ALL_TASKS]:
+        cells = [_metric(row["metrics"][k]) for k in labels]
+        success = (
+            "n/a" if row["success"] is None
+            else _success(row["success"], row["success_min"], row["success_max"])
+        )  # fmt: skip
+        lines.append(
+            f"| {row['label']} | " + " | ".join(cells) + f" | {success} | {row['num_trials']} |"
+        )
+
+    def rp(value: float | None, p: float | None) -> str:
+        if value is None:
+            return "undefined"
+        return f"{value:+.3f}" + ("" if p is None else f" (p {p:.2g})")
+
+    lines += [
+        "",
+        "Rank correlation across models between each metric and success (a metric that agrees "
+        "with control correlates negatively for FVD and LPIPS, positively for SSIM):",
+        "",
+        "| scope | metric | models | Spearman ρ | Kendall τ-b | note |",
+        "|---|---|---|---|---|---|",
+    ]
+    # A metric no model has (its weights are not on the machine) is one line, not a row of
+    # "undefined" per scope.
+    measured = {c["metric"] for c in data["correlations"] if c["n"]}
+    absent = [labels[k] for k in labels if k not in measured]
+    for c in data["correlations"]:
+        if c["metric"] not in measured:
+            continue
+        lines.append(
+            f"| {c['scope']} | {labels[c['metric']]} | {c['n']} | "
+            f"{rp(c['spearman'], c['spearman_p'])} | {rp(c['kendall'], c['kendall_p'])} | "
+            f"{c['note']} |"
+        )
+    if absent:
+        lines += ["", f"Left out: {', '.join(absent)}, which no model has (see the metrics table)."]
+    notes = data.get("notes", [])
+    return lines + ([""] + [f"- {n}" for n in notes] if notes else [])

@@ -1,0 +1,1 @@
+"""Fidelity checks: vp2's re-implementations against the originals they replace."""

@@ -1,0 +1,126 @@
+"""Simulator-oracle planning-step time with 1 and 2 workers, side by side, per environment.
+
+    MUJOCO_GL=egl .venv/bin/python -m benchmarks.speed.bench_oracle       # 200 samples
+    MUJOCO_GL=egl .venv/bin/python -m benchmarks.speed.bench_oracle --num-samples 20 \\
+        --tasks robodesk/push_red
+
+One planning step = what the planning agent does once per control step with the oracle:
+MPPI draws N candidate sequences of 10 actions, the oracle resets an environment to the
+current state and simulates and renders every candidate (10 env steps + 10 renders at 64x64
+each), the cost scores the frames, MPPI averages. Timed: ``PlanningAgent.act``, after a
+warm-up step that starts the worker pool and builds each worker's environment and renderer
+(reported separately). Repeats alternate 1, 2, 1, 2 workers so that machine noise hits both.
+
+Each sample costs the same, so a step with N samples scales linearly: with ``--num-samples``
+below 200 the table also shows the 200-sample step extrapolated (marked).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+
+import numpy as np
+
+from benchmarks import common
+from vp2.envs import make_env
+from vp2.models.simulator import SimulatorModel
+from vp2.planning import Observation, PlannerConfig, PlanningAgent
+
+SPEC_SAMPLES = 200
+
+
+def observation(env, seed: int) -> tuple[Observation, np.ndarray]:
+    """A mid-trial observation: reset, one zero step; the goal image is the reset frame."""
+    env.reset(seed=seed)
+    goal = env.render(64)
+    zero = np.zeros(env.action_dim)
+    env.step(zero)
+    frames = np.stack([goal, env.render(64)])
+    return Observation(1, frames, zero, env.serialize(), env.get_state()), goal
+
+
+def _sim_breakdown(env, state: np.ndarray, steps: int = 10) -> tuple[float, float]:
+    """Mean seconds of one env step and one 64x64 render, in this process."""
+    rng = np.random.default_rng(0)
+    env.reset_to(state)
+    t_step = t_render = 0.0
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        env.step(rng.uniform(-1, 1, env.action_dim))
+        t1 = time.perf_counter()
+        env.render(64)
+        t_render += time.perf_counter() - t1
+        t_step += t1 - t0
+    return t_step / steps, t_render / steps
+
+
+def main() -> None:
+    parser = common.argument_parser(__spec__.name, __doc__)
+    parser.add_argument("--tasks", nargs="+", default=["tabletop/push_sphere", "robodesk/push_red"])
+    parser.add_argument("--num-samples", type=int, default=SPEC_SAMPLES)
+    parser.add_argument("--repeats", type=int, default=1, help="timed steps per worker count")
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+
+    rows = []
+    for task in args.tasks:
+        env = make_env(task, seed=args.seed, observation_size=None)
+        obs, goal = observation(env, args.seed)
+        step_s, render_s = _sim_breakdown(env, obs.state)
+        env.close()
+        models = {w: SimulatorModel(action_dim=env.action_dim, num_workers=w) for w in args.workers}
+        times: dict[int, list[float]] = {w: [] for w in args.workers}
+        startup: dict[int, float] = {}
+        try:
+            for w, model in models.items():
+                warm = PlanningAgent(model, PlannerConfig(num_samples=w))
+                warm.reset(task, goal, seed=0)
+                t0 = time.perf_counter()
+                warm.act(obs)
+                startup[w] = time.perf_counter() - t0
+            for r in range(args.repeats):
+                for w, model in models.items():
+                    agent = PlanningAgent(model, PlannerConfig(num_samples=args.num_samples))
+                    agent.reset(task, goal, seed=r)
+                    t0 = time.perf_counter()
+                    agent.act(obs)
+                    times[w].append(time.perf_counter() - t0)
+        finally:
+            for model in models.values():
+                model.close()
+        base = statistics.median(times[args.workers[0]])
+        for w in args.workers:
+            t = statistics.median(times[w])
+            rows.append((task, w, t, startup[w], base / t, step_s, render_s, times[w]))
+
+    print(
+        f"machine: {platform.machine()} {os.cpu_count()} cores (load {os.getloadavg()[0]:.1f} at "
+        f"the end), {args.num_samples} samples x 10 steps, {args.repeats} timed step(s) per row"
+    )
+    extrapolate = args.num_samples != SPEC_SAMPLES
+    head = "| task | workers | planning step s (median) | per sample ms | speed-up | pool start s |"
+    rule = "|---|---|---|---|---|---|"
+    if extrapolate:
+        head += f" {SPEC_SAMPLES}-sample step s (extrapolated) |"
+        rule += "---|"
+    head += " env step ms | render ms | runs s |"
+    rule += "---|---|---|"
+    print(head)
+    print(rule)
+    for task, w, t, start, speedup, step_s, render_s, runs in rows:
+        line = (
+            f"| {task} | {w} | {t:.1f} | {1000 * t / args.num_samples:.0f} | {speedup:.2f}x | "
+            f"{start:.1f} |"
+        )
+        if extrapolate:
+            line += f" {t * SPEC_SAMPLES / args.num_samples:.0f} |"
+        line += f" {1000 * step_s:.0f} | {1000 * render_s:.0f} | {', '.join(f'{x:.1f}' for x in runs)} |"
+        print(line)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,379 @@
+"""Tabletop environment: speed, render fidelity, dynamics identity and scripted-policy success.
+
+Sections (``--section``, default ``all``):
+
+* ``speed``: one control step + 64x64 observation of :class:`vp2.envs.tabletop.TabletopEnv`
+  against the same robosuite environment stepped with robosuite's own ``env.step`` and its
+  own camera observation at 64x64 (``use_camera_obs=True``, robosuite's rendering quality),
+  interleaved step by step in one process so that machine load hits both alike; also our
+  step without rendering, and the floor: the raw ``mujoco.mj_step`` calls one control step
+  needs (25 per 0.05 s of simulated time; one control step is 0.2 s = 100 physics steps).
+* ``fidelity``: mean absolute pixel error of ``RENDER_SPEC`` against
+  ``RENDER_SPEC.full_quality()`` at 64x64 over many varied states (random initial states plus
+  random actions), and the render time of each.
+* ``visibility``: visible pixels of each object at 64x64 (segmentation renders of the
+  benchmark camera) at reset and after 12 policy steps, and the share of objects that are
+  less than a quarter visible (under the hand).
+* ``dynamics``: our lean step against robosuite's ``env.step`` from the same states with the
+  same actions: the largest absolute difference of the full MuJoCo state (0 = bit-identical).
+* ``policy``: success of the noise-free scripted pushing policy per task category within 35
+  steps (any step), with and without the clear-path direction filter, and of the noisy
+  (σ = 0.05) policy.
+
+Usage::
+
+    MUJOCO_GL=egl .venv/bin/python -m benchmarks.speed.bench_tabletop [--section all] \\
+        [--steps 30] [--states 50] [--episodes 50] [--workers 2] [--json out.json]
+
+Prints Markdown tables; results are recorded in docs/tabletop.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import statistics
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from benchmarks import common  # noqa: E402
+from vp2.data.policies.base import NoisyPolicy  # noqa: E402
+from vp2.data.policies.tabletop import make_tabletop_policy  # noqa: E402
+from vp2.envs._tabletop_stepper import LeanStepper  # noqa: E402
+from vp2.envs._tabletop_world import TabletopWorld  # noqa: E402
+from vp2.envs.rendering import Renderer, mean_abs_error  # noqa: E402
+from vp2.envs.tabletop import OBJECT_NAMES, RENDER_SPEC, TabletopEnv  # noqa: E402
+
+_INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
+def _sim_state(world: TabletopWorld) -> np.ndarray:
+    model, data = world.sim.model._model, world.sim.data._data
+    out = np.empty(mujoco.mj_stateSize(model, _INTEGRATION))
+    mujoco.mj_getState(model, data, out, _INTEGRATION)
+    return out
+
+
+def _varied_states(env: TabletopEnv, count: int, seed: int) -> list[np.ndarray]:
+    """States from random resets followed by 0-20 random actions (a few scripted pushes too)."""
+    rng = np.random.default_rng(seed)
+    states = []
+    for i in range(count):
+        env.reset(seed=seed + i)
+        if i % 2:
+            policy = make_tabletop_policy(env, np.random.default_rng(i))
+            for _ in range(int(rng.integers(5, 25))):
+                env.step(policy.act())
+        else:
+            for _ in range(int(rng.integers(0, 20))):
+                env.step(rng.uniform(-1, 1, 4))
+        states.append(env.get_state())
+    return states
+
+
+# ---- sections --------------------------------------------------------------------------------
+def bench_speed(steps: int) -> dict:
+    ours = TabletopEnv("push_large_cube", seed=0, observation_size=64)
+    ours_blind = TabletopEnv("push_large_cube", seed=0, observation_size=None)
+    robo = TabletopWorld(camera_obs_size=64)
+    robo_stepper = LeanStepper(robo)  # only to load states into robosuite's controllers
+    for e in (ours, ours_blind):
+        e.reset(seed=7)
+    common.load_into_world(ours, robo, robo_stepper)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, size=(steps + 3, 4))
+    model = ours._model
+    n_substeps = ours._stepper.n_substeps
+    times: dict[str, list[float]] = {"ours": [], "ours_blind": [], "robosuite": [], "floor": []}
+    probe = mujoco.MjData(model)
+    for i, action in enumerate(actions):
+        t0 = time.perf_counter()
+        ours.step(action)
+        t1 = time.perf_counter()
+        ours_blind.step(action)
+        t2 = time.perf_counter()
+        obs, *_ = robo.step(action)
+        t3 = time.perf_counter()
+        mujoco.mj_setState(model, probe, ours.get_state()[: ours._n_integration], _INTEGRATION)
+        t4 = time.perf_counter()
+        for _ in range(n_substeps):
+            mujoco.mj_step(model, probe)
+        t5 = time.perf_counter()
+        if i >= 3:  # warm-up: first renders create GL contexts
+            times["ours"].append(t1 - t0)
+            times["ours_blind"].append(t2 - t1)
+            times["robosuite"].append(t3 - t2)
+            times["floor"].append(t5 - t4)
+    assert obs[f"{robo.camera_names[0]}_image"].shape == (64, 64, 3)
+    med = {k: statistics.median(v) * 1e3 for k, v in times.items()}
+    q = {k: np.percentile(np.array(v) * 1e3, [25, 75]).tolist() for k, v in times.items()}
+    ours.close()
+    robo.close()
+    return {
+        "median_ms": med,
+        "quartiles_ms": q,
+        "steps": steps,
+        "physics_steps_per_control_step": n_substeps,
+        "speedup_vs_robosuite_with_render": med["robosuite"] / med["ours"],
+        "blind_step_over_floor": med["ours_blind"] / med["floor"],
+    }
+
+
+def bench_fidelity(count: int) -> dict:
+    env = TabletopEnv("push_large_cube", seed=0, observation_size=None)
+    states = _varied_states(env, count, seed=1000)
+    candidates = {
+        "full quality": RENDER_SPEC.full_quality(),
+        "no reflection": dataclasses.replace(RENDER_SPEC.full_quality(), reflection=False),
+        "RENDER_SPEC": RENDER_SPEC,
+    }
+    renderers = {name: Renderer(env._model, spec) for name, spec in candidates.items()}
+    images: dict[str, list[np.ndarray]] = {name: [] for name in candidates}
+    times: dict[str, list[float]] = {name: [] for name in candidates}
+    for state in states:
+        env.reset_to(state)
+        mujoco.mj_kinematics(env._model, env._data)
+        mujoco.mj_camlight(env._model, env._data)
+        for name, renderer in renderers.items():
+            t0 = time.perf_counter()
+            images[name].append(renderer.render(env._data, 64))
+            times[name].append(time.perf_counter() - t0)
+    for renderer in renderers.values():
+        renderer.close()
+    rows = {}
+    for name in candidates:
+        errors = [
+            mean_abs_error(a, b) for a, b in zip(images[name], images["full quality"], strict=True)
+        ]
+        rows[name] = {
+            "mae_mean": float(np.mean(errors)),
+            "mae_max": float(np.max(errors)),
+            "render_ms": statistics.median(times[name][1:]) * 1e3,
+        }
+    return {
+        "states": count,
+        "candidates": rows,
+        "spec": {
+            "shadow_size": RENDER_SPEC.shadow_size,
+            "shadow_lights": RENDER_SPEC.shadow_lights,
+            "multisamples": RENDER_SPEC.multisamples,
+            "reflection": RENDER_SPEC.reflection,
+            "skybox": RENDER_SPEC.skybox,
+        },
+    }
+
+
+def bench_visibility(states: int) -> dict:
+    """Visible pixels of each object at 64x64, from segmentation renders of the benchmark camera.
+
+    States ``reset(seed=100000 + i)`` and the same after 12 steps of the scripted policy;
+    visual geoms only. ``hidden_share``: objects with less than a quarter of their median
+    visible pixels (mostly under the hand).
+    """
+    env = TabletopEnv("push_large_cube", seed=0, observation_size=None)
+    model, data = env._model, env._data
+    renderer = mujoco.Renderer(model, 64, 64)
+    renderer.enable_segmentation_rendering()
+    option = mujoco.MjvOption()
+    option.geomgroup[:] = 0
+    option.geomgroup[1] = 1  # robosuite's visual geoms
+    bodies = [model.body(f"{name}_main").id for name in OBJECT_NAMES]
+    counts: dict[str, list[list[int]]] = {"reset": [], "after_12_policy_steps": []}
+    for i in range(states):
+        env.reset(seed=100_000 + i)
+        policy = make_tabletop_policy(env, np.random.default_rng(i))
+        for phase, steps in (("reset", 0), ("after_12_policy_steps", 12)):
+            for _ in range(steps):
+                env.step(policy.act())
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_camlight(model, data)
+            renderer.update_scene(data, camera=RENDER_SPEC.camera, scene_option=option)
+            geom = renderer.render()[..., 0]
+            body = np.where(geom >= 0, model.geom_bodyid[np.clip(geom, 0, model.ngeom - 1)], -1)
+            counts[phase].append([int((body == b).sum()) for b in bodies])
+    renderer.close()
+    env.close()
+    out: dict = {"states": states}
+    for phase, c in counts.items():
+        c = np.array(c)
+        median = np.median(c, axis=0)
+        out[phase] = {
+            "median_pixels": dict(zip(OBJECT_NAMES, median.tolist(), strict=True)),
+            "median_width_px": dict(
+                zip(OBJECT_NAMES, np.sqrt(median).round(2).tolist(), strict=True)
+            ),
+            "hidden_share": float(np.mean(c < 0.25 * median)),
+        }
+    return out
+
+
+def bench_dynamics(episodes: int, steps: int) -> dict:
+    env = TabletopEnv("push_large_cube", seed=0, observation_size=None)
+    world = TabletopWorld()
+    stepper = LeanStepper(world)
+    worst = 0.0
+    for ep in range(episodes):
+        env.reset(seed=ep)
+        common.load_into_world(env, world, stepper)
+        rng = np.random.default_rng(ep)
+        policy = make_tabletop_policy(env, np.random.default_rng(ep))
+        for t in range(steps):
+            # Mix scripted pushes (contacts) with random actions (gripper toggling, fast moves).
+            action = policy.act() if t % 3 else rng.uniform(-1, 1, 4)
+            env.step(action)
+            world.step(env.check_action(action))
+            diff = np.abs(_sim_state(world) - env.get_state()[: env._n_integration]).max()
+            worst = max(worst, float(diff))
+    return {"episodes": episodes, "steps": steps, "max_abs_state_difference": worst}
+
+
+def _policy_episode(args: tuple[int, int, bool, float]) -> tuple[int, bool, int | None]:
+    obj, episode, clear_path, sigma = args
+    env = TabletopEnv(f"push_{OBJECT_NAMES[obj]}", seed=0, observation_size=None)
+    env.reset(seed=100_000 + episode)
+    policy = make_tabletop_policy(
+        env, np.random.default_rng(episode), target_object=obj, clear_path=clear_path
+    )
+    goal = policy.goal_state()
+    actor = policy
+    if sigma > 0:
+        actor = NoisyPolicy(
+            policy, (sigma, sigma, sigma, 0.0), np.random.default_rng(10**6 + episode)
+        )
+    first = None
+    for t in range(35):
+        env.step(actor.act())
+        if first is None and env.is_success(goal):
+            first = t + 1
+    env.close()
+    return obj, first is not None, first
+
+
+def bench_policy(episodes: int, workers: int) -> dict:
+    results = {}
+    variants = {
+        "noise_free": (True, 0.0),
+        "noise_free_no_clear_path": (False, 0.0),
+        "noisy_0.05": (True, 0.05),
+    }
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for name, (clear_path, sigma) in variants.items():
+            jobs = [
+                (o, e, clear_path, sigma) for o in range(len(OBJECT_NAMES)) for e in range(episodes)
+            ]
+            out = list(pool.map(_policy_episode, jobs, chunksize=4))
+            table = {}
+            for o, obj in enumerate(OBJECT_NAMES):
+                rows = [r for r in out if r[0] == o]
+                steps = [r[2] for r in rows if r[1]]
+                table[f"push_{obj}"] = {
+                    "success_rate": sum(r[1] for r in rows) / len(rows),
+                    "median_first_success_step": statistics.median(steps) if steps else None,
+                }
+            results[name] = table
+    return {"episodes_per_category": episodes, **results}
+
+
+def main() -> None:
+    parser = common.argument_parser(__spec__.name, __doc__)
+    parser.add_argument(
+        "--section",
+        choices=["all", "speed", "fidelity", "visibility", "dynamics", "policy"],
+        default="all",
+    )
+    parser.add_argument("--steps", type=int, default=30, help="timed control steps (speed)")
+    parser.add_argument("--states", type=int, default=50, help="varied states (fidelity)")
+    parser.add_argument("--episodes", type=int, default=50, help="episodes per category (policy)")
+    parser.add_argument("--workers", type=int, default=2, help="processes (policy)")
+    parser.add_argument("--json", help="also write the results to this file")
+    args = parser.parse_args()
+
+    report: dict = {
+        "date": common.timestamp(),
+        "machine": f"{common.cpu_name()}, {os.cpu_count()} CPUs",
+        "mujoco_gl": os.environ.get("MUJOCO_GL"),
+    }
+    sections = (
+        ["speed", "fidelity", "visibility", "dynamics", "policy"]
+        if args.section == "all"
+        else [args.section]
+    )
+    print(
+        f"# bench_tabletop  {report['date']}  {report['machine']}  MUJOCO_GL={report['mujoco_gl']}"
+    )
+    if "speed" in sections:
+        r = report["speed"] = bench_speed(args.steps)
+        m = r["median_ms"]
+        print(
+            f"\n## Speed (median of {r['steps']} control steps, ms; {r['physics_steps_per_control_step']} physics steps each)\n"
+        )
+        print("| what | median ms | quartiles |\n|---|---|---|")
+        labels = {
+            "ours": "TabletopEnv step + 64x64 render",
+            "robosuite": "robosuite env.step with 64x64 camera obs",
+            "ours_blind": "TabletopEnv step, no render",
+            "floor": "raw mj_step calls of one step",
+        }
+        for k, label in labels.items():
+            q = r["quartiles_ms"][k]
+            print(f"| {label} | {m[k]:.2f} | {q[0]:.2f}-{q[1]:.2f} |")
+        print(
+            f"\nspeed-up vs robosuite (with rendering): {r['speedup_vs_robosuite_with_render']:.2f}x;"
+            f" blind step / floor: {r['blind_step_over_floor']:.2f}x"
+        )
+    if "fidelity" in sections:
+        r = report["fidelity"] = bench_fidelity(args.states)
+        print(
+            f"\n## Render fidelity over {r['states']} states (64x64), RENDER_SPEC = {r['spec']}\n"
+        )
+        print(
+            "| render settings | MAE vs full quality (/255) | max over states | render ms |\n|---|---|---|---|"
+        )
+        for name, c in r["candidates"].items():
+            print(f"| {name} | {c['mae_mean']:.2f} | {c['mae_max']:.2f} | {c['render_ms']:.2f} |")
+    if "visibility" in sections:
+        r = report["visibility"] = bench_visibility(min(args.states, 40))
+        print(f"\n## Visible object pixels at 64x64 ({r['states']} states)\n")
+        print(
+            "| when | " + " | ".join(OBJECT_NAMES) + " | < 25% visible |\n|---|---|---|---|---|---|"
+        )
+        for phase in ("reset", "after_12_policy_steps"):
+            c = r[phase]
+            cells = [
+                f"{c['median_pixels'][o]:g} px ({c['median_width_px'][o]:.1f} across)"
+                for o in OBJECT_NAMES
+            ]
+            print(f"| {phase} | " + " | ".join(cells) + f" | {c['hidden_share']:.1%} |")
+    if "dynamics" in sections:
+        r = report["dynamics"] = bench_dynamics(episodes=4, steps=35)
+        print(f"\n## Dynamics vs robosuite env.step ({r['episodes']} x {r['steps']} steps)\n")
+        print(f"max |state difference| = {r['max_abs_state_difference']:.3g}")
+    if "policy" in sections:
+        r = report["policy"] = bench_policy(args.episodes, args.workers)
+        print(
+            f"\n## Scripted policy success within 35 steps ({r['episodes_per_category']} episodes per category)\n"
+        )
+        names = [k for k in r if k != "episodes_per_category"]
+        print("| category | " + " | ".join(names) + " |\n|---|" + "---|" * len(names))
+        for cat in r[names[0]]:
+            cells = []
+            for n in names:
+                c = r[n][cat]
+                cells.append(
+                    f"{c['success_rate']:.0%} (median step {c['median_first_success_step']})"
+                )
+            print(f"| {cat} | " + " | ".join(cells) + " |")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(report, f, indent=2, default=str)
+
+
+if __name__ == "__main__":
+    main()

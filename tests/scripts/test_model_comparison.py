@@ -1,0 +1,313 @@
+"""End to end: ``benchmarks.comparison.model_comparison --smoke`` on a tiny collected RoboDesk dataset,
+then again to show that it resumes (slow: about a minute per invocation on a loaded 2-core CPU).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from vp2.benchmark.results import read_trials
+from vp2.data.collect import CollectionConfig, collect
+
+REPO = Path(__file__).resolve().parents[2]
+MODULE = "benchmarks.comparison.model_comparison"
+FAMILIES = ("fitvid", "struct_vrnn")
+# A model evaluated beside the families, not trained by the comparison: the shipped SVG′.
+EXTRA = ("shipped", "svg_prime:src/vp2/assets/models/svg_prime_tiny_robodesk.pt")
+RUNS = (*FAMILIES, EXTRA[0], "repeat_last_frame", "random")
+TASK = "robodesk/push_red"  # the task --smoke runs
+
+# 3 trajectories of 15 actions at 64x64 (the benchmark's size): 10 train and 5 valid clips.
+TINY = CollectionConfig(
+    env="robodesk",
+    trajectories_per_stream=3,
+    streams=(TASK,),
+    image_size=64,
+    horizon=15,
+    chunk_size=3,
+    valid_every=3,
+)
+
+
+def _compare(data: Path, out: Path, *extra: str) -> None:
+    command = [sys.executable, "-m", MODULE, "--smoke", "--data", str(data), "--out", str(out),
+               "--families", *FAMILIES, "--threads", "1", "--extra", "=".join(EXTRA),
+               "--docs", str(out.parent / "docs" / "results.md"), *extra]  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    proc = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
+
+
+def _log(out: Path) -> list[list[dict]]:
+    """``log.jsonl`` grouped by invocation, in order."""
+    lines = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    invocations = list(dict.fromkeys(line["invocation"] for line in lines))
+    return [[x for x in lines if x["invocation"] == i] for i in invocations]
+
+
+def _table(markdown: str, header_start: str) -> list[list[str]]:
+    """The rows (cells) of the Markdown table whose header row starts with ``header_start``."""
+    lines = markdown.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(header_start))
+    rows = []
+    for line in lines[start:]:
+        if not line.startswith("|"):
+            break
+        rows.append([c.strip() for c in line.strip("|").split("|")])
+    return rows
+
+
+@pytest.mark.slow
+def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
+    data = collect(TINY, tmp_path / "data", workers=1, progress=False)
+    out = tmp_path / "comparison"
+    _compare(data, out)
+
+    results = (out / "results.md").read_text()
+    # Success: a row per task, a cell per agent plus the shipped oracle's, then the means.
+    table = _table(results, "| task |")
+    assert table[0] == ["task", *RUNS, "oracle (shipped)"]
+    assert [row[0] for row in table[2:]] == [
+        TASK,
+        "**mean over tasks**",
+        "**oracle-normalised mean**",
+    ]
+    assert all(cell.endswith("(1)") for cell in table[2][1:-1])  # 1 trial each
+    for name in RUNS:
+        records = read_trials(out / "runs" / name)
+        assert [(r["task"], r["instance"], r["seed"]) for r in records] == [(TASK, 0, 0)]
+        assert records[0]["error"] is None
+    # The budget stopped each training run, which wrote its final checkpoint.
+    budget = _table(results, "| family |")
+    assert [row[0] for row in budget[2:]] == [*FAMILIES, EXTRA[0]]
+    assert budget[-1][1:4] == [f"`{EXTRA[1]}`", "–", "not trained here"]
+    for family in FAMILIES:
+        record = json.loads((out / "train" / f"{family}.json").read_text())
+        assert record["budget_reached"] and record["step"] >= 1
+        assert record["train_minutes"] >= record["budget_minutes"] == 0.1
+        assert Path(record["checkpoint"]).is_file()
+        assert f"| {family} | {family} (" in results
+    # Action conditioning: finite ratios inside their bootstrap intervals, in the table too.
+    for family in (*FAMILIES, EXTRA[0]):
+        r = json.loads((out / "conditioning" / f"{family}.json").read_text())
+        for key in ("all_pixels", "moving_pixels"):
+            low, high = r[key]["ci"]
+            assert math.isfinite(r[key]["ratio"]) and low <= r[key]["ratio"] <= high
+        assert r["all_pixels"]["n"] == 5  # every held-out clip of the tiny dataset
+        assert f"| {family} | {r['all_pixels']['ratio']:.3f} [" in results
+    # Metrics of every predictor; the study ranked them; the report page exists.
+    for name in (*FAMILIES, EXTRA[0], "repeat_last_frame"):
+        metrics = json.loads((out / "metrics" / name / "metrics.json").read_text())
+        assert metrics["num_clips"] == 5 and 0 < metrics["metrics"]["mse"] < 1
+        assert f"| {name} | {metrics['metrics']['mse']:.5f} |" in results
+    assert json.loads((out / "study" / "study.json").read_text())["labels"] == [
+        *FAMILIES,
+        EXTRA[0],
+        "repeat_last_frame",
+    ]
+    assert (out / "report.html").stat().st_size > 10_000
+    # The baselines ran first; the page was published after each run with what was pending.
+    (first,) = _log(out)
+    assert [x["name"] for x in first if x["stage"] == "run"] == [*RUNS[3:], EXTRA[0], *FAMILIES]
+    assert [x["pending"] for x in first if x["stage"] == "results"] == [
+        ["random", EXTRA[0], *FAMILIES], [EXTRA[0], *FAMILIES], list(FAMILIES), [FAMILIES[1]], []
+    ]
+    assert "**Incomplete**" not in results
+    # The published copy: the same page, its screenshot beside it.
+    published = (tmp_path / "docs" / "results.md").read_text()
+    if "![vp2 report](report.png)" in results:
+        assert published.replace("results-report.png", "report.png") == results
+        assert (tmp_path / "docs" / "results-report.png").read_bytes() == (
+            out / "report.png"
+        ).read_bytes()
+    else:
+        assert published == results
+    if "![vp2 report](report.png)" in results:
+        assert (out / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    else:
+        assert "no screenshot" in results
+
+    # Again, with one stage's output removed: only that stage runs; nothing is trained or
+    # planned again.
+    checkpoints = {f: json.loads((out / "train" / f"{f}.json").read_text()) for f in FAMILIES}
+    mtimes = {f: Path(c["checkpoint"]).stat().st_mtime_ns for f, c in checkpoints.items()}
+    trials = {name: (out / "runs" / name / "trials.jsonl").read_text() for name in RUNS}
+    (out / "conditioning" / "fitvid.json").unlink()
+    _compare(data, out)
+    first, second = _log(out)
+    status = {(x["stage"], x["name"]): x["status"] for x in second}
+    assert {status[("train", f)] for f in FAMILIES} == {"done earlier"}
+    assert status[("conditioning", "fitvid")] == "ran"
+    assert status[("conditioning", "struct_vrnn")] == "done earlier"
+    assert {status[("metrics", n)] for n in (*FAMILIES, EXTRA[0], "repeat_last_frame")} == {
+        "done earlier"
+    }
+    assert [x["num_run"] for x in second if x["stage"] == "run"] == [0] * len(RUNS)
+    assert [x["num_run"] for x in first if x["stage"] == "run"] == [1] * len(RUNS)
+    for family, record in checkpoints.items():
+        assert Path(record["checkpoint"]).stat().st_mtime_ns == mtimes[family]
+    for name in RUNS:
+        assert (out / "runs" / name / "trials.jsonl").read_text() == trials[name]
+    assert (out / "results.md").read_text().split("## Training budget")[1] == results.split(
+        "## Training budget"
+    )[1]
+
+    # --publish-only: the page again from what is on disk, with a Reading section that links
+    # the notes (from each page's folder); nothing trained or planned, and the page still
+    # names the build's command.
+    notes = tmp_path / "notes.md"
+    notes.write_text("The baselines solve nothing here.\n")
+    _compare(data, out, "--publish-only", "--notes", str(notes))
+    third = _log(out)[2]
+    assert {x["stage"] for x in third} == {"study", "report", "results"}
+    page = (out / "results.md").read_text()
+    assert "## Reading\n\n" in page and "](../notes.md)." in page
+    assert "The baselines solve nothing here." not in page  # linked, not copied
+    assert "](../notes.md)." in (tmp_path / "docs" / "results.md").read_text()
+    assert "--publish-only" not in page  # the command shown is the build's
+    assert page.split("## Training budget")[1].split("## Reading")[0].rstrip() == results.split(
+        "## Training budget"
+    )[1].split("## The report")[0].rstrip()
+    for name in RUNS:
+        assert (out / "runs" / name / "trials.jsonl").read_text() == trials[name]
+
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        ("svg_prime:model.pt", "expected LABEL=MODEL"),
+        ("=svg_prime:model.pt", "expected LABEL=MODEL"),
+        ("random=svg_prime:model.pt", "the label 'random' is already used"),
+        ("fitvid=svg_prime:model.pt", "the label 'fitvid' is already used"),
+    ],
+)
+def test_a_malformed_extra_model_stops_before_anything_runs(tmp_path, extra, message):
+    out = tmp_path / "comparison"
+    command = [sys.executable, "-m", MODULE, "--smoke", "--out", str(out), "--extra", extra]
+    proc = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert not out.exists()
+
+
+def test_the_page_leaves_out_correlations_of_a_metric_no_model_has(tmp_path):
+    from benchmarks.comparison.model_comparison_results import study_lines
+
+    def corr(scope, metric, n, rho):
+        note = "" if n >= 3 else f"{n} model(s); a rank correlation needs at least 3"
+        return {"scope": scope, "metric": metric, "n": n, "spearman": rho, "spearman_p": 0.5,
+                "kendall": rho, "kendall_p": 0.3, "note": note}
+
+    rows = [
+        {"label": name, "metrics": {"fvd": fvd, "lpips": None, "ssim": ssim},
+         "success": success, "success_min": success, "success_max": success, "num_trials": 6}
+        for name, fvd, ssim, success in
+        (("a", 300.0, 0.8, 0.5), ("b", 1454.85, 0.6, 0.2), ("c", 99.44, 0.9, 0.0))
+    ]
+    scopes = ("robodesk/push_red", "all tasks")
+    study = {
+        "rows": {"all tasks": rows},
+        "correlations": [
+            corr(s, m, 0 if m == "lpips" else 3, None if m == "lpips" else -1.0)
+            for s in scopes for m in ("fvd", "lpips", "ssim")
+        ],
+        "notes": ["a: no LPIPS ×100 in ['m.json']"],
+    }
+    path = tmp_path / "study.json"
+    path.write_text(json.dumps(study))
+    text = "\n".join(study_lines(path))
+    table = [line for line in text.splitlines() if line.startswith("| robodesk/") or
+             line.startswith("| all tasks |")]
+    assert len(table) == 4  # FVD and SSIM in each of the two scopes; LPIPS in none
+    assert not any("LPIPS" in line for line in table)
+    assert "| all tasks | FVD | 3 | -1.000 (p 0.5) | -1.000 (p 0.3) |  |" in table
+    assert "Left out: LPIPS ×100, which no model has" in text
+    # one decimal, as the metrics table prints them
+    assert "| a | 300.0 | n/a | 0.8 | 50 [50, 50] | 6 |" in text
+    assert "| b | 1454.8 | n/a | 0.6 |" in text and "| c | 99.4 | n/a | 0.9 |" in text
+
+
+@pytest.fixture
+def comparison():
+    """The script as a module."""
+    import benchmarks.comparison.model_comparison as module
+
+    return module
+
+
+def _settings(module, *argv: str):
+
+    argv = ["--smoke", "--families", *FAMILIES, "--seeds", "0", "1", *argv]
+    return module.settings_from_args(module.parse_args(argv), argv)
+
+
+def test_seeds_for_gives_one_run_a_subset_of_the_seeds(comparison, tmp_path):
+    run_config = comparison.run_config
+    s = _settings(
+        comparison, "--seeds-for", "fitvid=1", "--seeds-for", "random=1,0", "--out", str(tmp_path)
+    )
+    assert s.seeds_for == (("fitvid", (1,)), ("random", (0, 1)))
+    assert tuple(run_config(s, "fitvid", "fitvid:x.pt").seeds) == (1,)
+    assert tuple(run_config(s, "struct_vrnn", "struct_vrnn:x.pt").seeds) == (0, 1)
+    assert tuple(run_config(s, "random", None).seeds) == (0, 1)
+    assert s.seeds_of("repeat_last_frame") == (0, 1)
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("fitvid", "expected RUN=SEEDS"),
+        ("fitvid=", "expected RUN=SEEDS"),
+        ("fitvid=a", "expected RUN=SEEDS"),
+        ("mcvd=0", "no run 'mcvd' in this comparison; the runs are fitvid, struct_vrnn"),
+        ("fitvid=2", "seed(s) [2] are not among --seeds 0 1"),
+    ],
+)
+def test_a_malformed_seeds_for_says_what_is_wrong(comparison, item, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        _settings(comparison, "--seeds-for", item)
+
+
+def test_the_page_names_the_runs_on_fewer_seeds(tmp_path):
+    from benchmarks.comparison.model_comparison_results import success_lines
+
+    s = {"run_names": ["fitvid"], "tasks": ["robodesk"], "num_instances": 3, "seeds": [0, 1],
+         "seeds_for": [["fitvid", [0]]], "num_samples": 50, "num_steps": 15}  # fmt: skip
+    text = "\n".join(success_lines(tmp_path, s))
+    assert "seeds 0, 1 (fitvid: seed 0 only, `--seeds-for`), MPPI" in text
+    assert "| robodesk" not in text  # no summary on disk: no task rows
+
+
+def test_the_reading_section_links_the_notes_from_where_the_page_is_written(tmp_path):
+    from benchmarks.comparison.model_comparison_results import relative_link, results_markdown
+
+    notes = Path("docs/findings/model-comparison.md")
+    assert relative_link(notes, Path("docs/results.md")) == "findings/model-comparison.md"
+    assert relative_link(notes, Path("outputs/comparison/results.md")) == (
+        "../../docs/findings/model-comparison.md"
+    )
+    # A comparison that has nothing on disk yet: the page still has its sections.
+    settings = {
+        "vp2_version": "0", "torch_version": "0", "command": "python -m x", "data": "d",
+        "batch_size": 4, "budget_minutes": 0.1, "families": [], "family_stages": {},
+        "run_names": [], "tasks": ["robodesk"], "num_instances": 1, "seeds": [0],
+        "num_samples": 8, "num_steps": 3, "conditioning_clips": 8, "conditioning_samples": 1,
+        "metrics_names": [], "lpips": [], "fvd": False,
+    }  # fmt: skip
+    (tmp_path / "comparison.json").write_text(json.dumps(settings))
+    page = results_markdown(tmp_path, "no screenshot", notes="findings/model-comparison.md")
+    reading = page.split("## Reading\n\n")[1].split("\n\n## The report")[0]
+    assert reading == (
+        "What these numbers say is written apart from this generated page: "
+        "[findings/model-comparison.md](findings/model-comparison.md)."
+    )
+    assert "## Reading" not in results_markdown(tmp_path, "no screenshot")
