@@ -1,4 +1,4 @@
-"""``vp2 tasks generate|list|show``: the task suite (docs/data.md)."""
+"""``vp2 tasks generate|list|show|verify``: the task suite (docs/data.md)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from vp2.cli._common import add_executor_flags, make_executor_from_args
 log = logging.getLogger(__name__)
 
 NAME = "tasks"
-HELP = "the task suite: generate, list, show"
+HELP = "the task suite: generate, list, show, verify"
 DESCRIPTION = None
 
 
@@ -32,6 +32,8 @@ def run_from_args(args: argparse.Namespace) -> int:
         print(f"task suite: {out} ({len(suite)} instances)")
         return 0
     suite = suite_lib.TaskSuite.load(args.suite)
+    if args.tasks_command == "verify":
+        return _verify(suite, args)
     if args.tasks_command == "list":
         for task in suite.tasks:
             insts = suite.for_task(task)
@@ -54,6 +56,21 @@ def run_from_args(args: argparse.Namespace) -> int:
     return 0
 
 
+def _verify(suite, args: argparse.Namespace) -> int:
+    from vp2.data.suite_verify import verify_suite
+
+    report = verify_suite(suite, tasks=tuple(args.tasks or ()), regenerate=args.regenerate,
+                          replay=not args.no_replay, progress=not args.no_progress)
+    for mismatch in report.mismatches:
+        print(f"MISMATCH {mismatch}")
+    verdict = ("every instance reproduced bit for bit" if report.ok else
+               f"{len(report.mismatches)} instance(s) differ on this machine: trials here do not "
+               "run on the suite's instances (docs/data.md, 'Reproducibility')")
+    print(f"{args.suite or 'the shipped suite'}: {report.replayed} replayed, "
+          f"{report.regenerated} regenerated; {verdict}")
+    return 0 if report.ok else 1
+
+
 def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Adds the ``vp2 tasks`` arguments to ``p``."""
     tsub = p.add_subparsers(dest="tasks_command", required=True)
@@ -71,4 +88,13 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     show.add_argument("--suite", help="suite file (default: the shipped suite)")
     show.add_argument("--out", default=None, help="PNG path (default: outputs/tasks/<task>.png)")
     show.add_argument("--max", type=int, default=12, help="instances to show")
+    ver = tsub.add_parser(
+        "verify", help="replay every instance and regenerate a few, bit for bit (exit 1 on a "
+        "mismatch)")
+    ver.add_argument("--suite", help="suite file (default: the shipped suite)")
+    ver.add_argument("--tasks", nargs="+", help="task categories or env names (default: all)")
+    ver.add_argument("--regenerate", type=int, default=1, metavar="K",
+                     help="regenerate the first K instances of each category from their seeds")
+    ver.add_argument("--no-replay", action="store_true", help="only regenerate")
+    ver.add_argument("--no-progress", action="store_true")
     return p
