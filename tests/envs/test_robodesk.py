@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from vp2.envs import make_env_from_metadata
-from vp2.envs._ik import SitePositionIK
+from vp2.envs._ik import SitePositionIK, nullspace_step
 from vp2.envs._robodesk_model import RENDER_SPEC, load_model
 from vp2.envs.rendering import Renderer, mean_abs_error
 from vp2.envs.robodesk import IK_JOINTS, OBJECTS, TASKS, RoboDeskEnv
@@ -26,6 +26,30 @@ _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 def env():
     with RoboDeskEnv("push_red", seed=0, observation_size=None) as e:
         yield e
+
+
+class _NumpyWithMujocoNorm:
+    """numpy, except ``linalg.norm``: MuJoCo's ``mju_norm`` (fixed summation order)."""
+
+    class linalg:  # noqa: N801
+        @staticmethod
+        def norm(v):
+            return mujoco.mju_norm(np.ascontiguousarray(v, np.float64))
+
+    def __getattr__(self, name):
+        return getattr(np, name)
+
+
+@pytest.fixture
+def deterministic_dm_control(monkeypatch):
+    """dm_control's IK with its two CPU-dependent pieces replaced by vp2's: the least-squares
+    step (numpy.linalg.solve/lstsq on OpenBLAS) and the vector norms (BLAS ddot). Everything
+    else -- the package's control loop, its IK iteration, dm_control's physics -- is the
+    package's own code, which vp2 must then match bit for bit."""
+    inverse_kinematics = pytest.importorskip("dm_control.utils.inverse_kinematics")
+    monkeypatch.setattr(inverse_kinematics, "nullspace_method", nullspace_step)
+    monkeypatch.setattr(inverse_kinematics, "np", _NumpyWithMujocoNorm())
+    return inverse_kinematics
 
 
 def _actions(n: int, seed: int = 0) -> np.ndarray:
@@ -271,9 +295,10 @@ def test_render_sizes_and_spec():
             full.close()
 
 
-def test_ik_matches_dm_control_bit_for_bit():
-    """The IK is dm_control's qpos_from_site_pose (position, joints 1-6), to the last bit."""
-    inverse_kinematics = pytest.importorskip("dm_control.utils.inverse_kinematics")
+def test_ik_matches_dm_control_bit_for_bit(deterministic_dm_control):
+    """The IK is dm_control's qpos_from_site_pose (position, joints 1-6), to the last bit
+    (with its linear algebra made CPU-independent the same way)."""
+    inverse_kinematics = deterministic_dm_control
     from dm_control import mujoco as dm_mujoco
 
     with RoboDeskEnv("push_red", seed=0, observation_size=None) as e:
@@ -296,7 +321,7 @@ def _desk_xml():
     return asset_path()
 
 
-def test_dynamics_match_the_robodesk_package_bit_for_bit():
+def test_dynamics_match_the_robodesk_package_bit_for_bit(deterministic_dm_control):
     """A short version of benchmarks/fidelity/robodesk_equivalence.py: same state, same actions."""
     robodesk = pytest.importorskip("robodesk")
     package = robodesk.RoboDesk(task="push_red", action_repeat=50)
@@ -316,7 +341,9 @@ def test_dynamics_match_the_robodesk_package_bit_for_bit():
 
 
 @pytest.mark.parametrize("task", TASKS)
-def test_dense_reward_matches_the_package_summed_over_the_repeats(task):
+def test_dense_reward_matches_the_package_summed_over_the_repeats(
+    task, deterministic_dm_control
+):
     """The classifiers' paper label (SPEC §6) sums the package's dense reward over a step."""
     robodesk = pytest.importorskip("robodesk")
     package = robodesk.RoboDesk(task=task, reward="dense", action_repeat=50)

@@ -58,7 +58,7 @@ MAX_INSTANCE_ACTIONS = TRIAL_FREE_ACTIONS - 2
 #: The look-back ``L`` (scripted actions between the initial state and the first success) is
 #: drawn uniformly from this inclusive range per instance.
 LOOKBACK_RANGE = (4, MAX_INSTANCE_ACTIONS)
-SUITE_FORMAT = "vp2-task-suite/2"
+SUITE_FORMAT = "vp2-task-suite/3"
 SHIPPED_SUITE = "task_suite.npz"
 
 

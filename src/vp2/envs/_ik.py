@@ -7,15 +7,23 @@ a full ``mj_fwdPosition`` (which runs collision detection, constraint assembly a
 factorisation that the IK never reads). Only the site position and its Jacobian are needed, and
 those depend on ``mj_kinematics`` (poses) and ``mj_comPos`` (``cdof``/``subtree_com``).
 
-Every floating-point operation that produces the joint update is the same as dm_control's, in the
-same order and on arrays of the same layout, so the solution is bit-identical to the package's,
-not merely close: the RoboDesk equivalence benchmark relies on that.
+The iteration (error, Jacobian, damped step, progress test, clamping, integration) is
+dm_control's, operation for operation, except for its two CPU-dependent pieces: dm_control gets
+the step from ``np.linalg.solve``/``np.linalg.lstsq`` on ``J'J`` and the norms from
+``np.linalg.norm``, i.e. from OpenBLAS/LAPACK kernels chosen by CPU at run time, which round
+differently on different machines (and ``gelsd`` on the rank-3 matrix ``J'J`` occasionally keeps
+a rounding-level singular value, adding a large null-space component to the step). Here the step
+is ``J' (J J' + l I)^-1 e`` -- the same vector (for ``l = 0`` the minimum-norm least-squares
+step) -- from a 3x3 Cholesky solve, and the norms are MuJoCo's: compiled code with a fixed
+summation order, the same bits on every CPU. With dm_control's ``nullspace_method`` and norms
+replaced by :func:`nullspace_step` and ``mju_norm`` the package's IK and dynamics match this one
+bit for bit (``tests/envs/test_robodesk.py``); against the unmodified package the trajectories
+agree as closely as the package agrees with itself on another OpenBLAS kernel (docs/robodesk.md).
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
@@ -78,7 +86,10 @@ class SitePositionIK:
         self.max_steps = max_steps
         self._jac = np.empty((3, model.nv))
         self._err = np.empty(3)
-        self._eye = np.eye(len(dofs))
+        self._jac_joints = np.empty((3, len(dofs)))
+        self._jj = np.empty((3, 3))
+        self._y = np.empty(3)
+        self._update = np.empty(len(dofs))
         self._site_xpos = self.data.site_xpos[self.site_id]  # a view, refreshed by mj_kinematics
         # With consecutive dofs/qpos (the Panda's), slices replace fancy indexing: the same
         # numbers (the equivalence benchmark checks every bit), two microseconds less per
@@ -108,27 +119,31 @@ class SitePositionIK:
         m, d = self.model, self.data
         kinematics, com_pos, jac_site = mujoco.mj_kinematics, mujoco.mj_comPos, mujoco.mj_jacSite
         site_id, err, jac, dof_index = self.site_id, self._err, self._jac, self._dof_index
+        jj, jac_joints, y, update = self._jj, self._jac_joints, self._y, self._update
         site_xpos = data.site_xpos[site_id]
         source = data
         d.qpos[:] = data.qpos
         steps = 0
         for steps in range(self.max_steps):  # noqa: B007 (steps is reported after the loop)
             np.subtract(target_pos, site_xpos, out=err)
-            # 0.0 + norm, as dm_control accumulates it; np.linalg.norm is sqrt(x.dot(x)).
-            err_norm = 0.0 + math.sqrt(err.dot(err))
+            err_norm = _norm3(err)
             if err_norm < self.tol:
                 break
             jac_site(m, source, jac, None, site_id)
-            jac_joints = jac[:, dof_index]
-            hess_approx = jac_joints.T.dot(jac_joints)
-            joint_delta = jac_joints.T.dot(err)
+            jac_joints[:] = jac[:, dof_index]
+            # The damped least-squares step (J'J + l I)^-1 J' e, computed as J' (J J' + l I)^-1 e
+            # (the same vector; for l = 0 the minimum-norm least-squares step that dm_control
+            # asks LAPACK's gelsd for): a 3x3 Cholesky solve in MuJoCo's own routines, whose
+            # summation order is compiled in, instead of CPU-dispatched BLAS/LAPACK.
+            _mul_mat_mat_t(jj, jac_joints, jac_joints)
             if err_norm > self.regularization_threshold and self.regularization_strength > 0:
-                hess_approx += self._eye * self.regularization_strength
-                update = np.linalg.solve(hess_approx, joint_delta)
-            else:
-                # The Gauss-Newton matrix has rank 3 here; lstsq returns the minimum-norm step.
-                update = _lstsq(hess_approx, joint_delta)
-            update_norm = math.sqrt(update.dot(update))
+                jj[0, 0] += self.regularization_strength
+                jj[1, 1] += self.regularization_strength
+                jj[2, 2] += self.regularization_strength
+            _chol_factor(jj, _MINDIAG)
+            _chol_solve(y, jj, err)
+            _mul_mat_t_vec(update, jac_joints, y)
+            update_norm = _norm(update)
             if update_norm == 0.0 or err_norm / update_norm > self.progress_thresh:
                 break
             if update_norm > self.max_update_norm:
@@ -145,6 +160,31 @@ class SitePositionIK:
         return d.qpos
 
 
+def nullspace_step(
+    jac_joints: np.ndarray, delta: np.ndarray, regularization_strength: float = 0.0
+) -> np.ndarray:
+    """One IK step, as :meth:`SitePositionIK.solve` computes it: ``J' (J J' + l I)^-1 delta``.
+
+    The same vector as dm_control's ``inverse_kinematics.nullspace_method`` (``(J'J + l I)^-1
+    J' delta``, or for ``l = 0`` the minimum-norm least-squares solution of ``J'J x = J'
+    delta``), computed with MuJoCo's routines so that it has the same bits on every CPU.
+    Tests substitute it for dm_control's to compare with the ``robodesk`` package bit for bit.
+    """
+    jac = np.ascontiguousarray(jac_joints, dtype=np.float64)
+    rows, cols = jac.shape
+    jj = np.empty((rows, rows))
+    _mul_mat_mat_t(jj, jac, jac)
+    if regularization_strength > 0:
+        for i in range(rows):
+            jj[i, i] += regularization_strength
+    _chol_factor(jj, _MINDIAG)
+    y = np.empty(rows)
+    _chol_solve(y, jj, np.ascontiguousarray(delta, dtype=np.float64))
+    update = np.empty(cols)
+    _mul_mat_t_vec(update, jac, y)
+    return update
+
+
 def _as_slice(indices: list[int]) -> slice | None:
     """``indices`` as a slice if they are consecutive, else ``None``."""
     if indices == list(range(indices[0], indices[0] + len(indices))):
@@ -152,35 +192,10 @@ def _as_slice(indices: list[int]) -> slice | None:
     return None
 
 
-def _numpy_lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.linalg.lstsq(a, b, rcond=-1)[0]
-
-
-def _make_lstsq() -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-    """``np.linalg.lstsq(a, b, rcond=-1)[0]`` for a square ``a`` and a vector ``b``.
-
-    ``np.linalg.lstsq`` spends two thirds of its 11 us in argument handling around one LAPACK
-    call (``gelsd``); the IK makes ~150 calls per env step. NumPy 1.x exposes that call as a
-    gufunc, which gives the same bits for a third of the cost. Anything else (another NumPy)
-    falls back to the public function.
-    """
-    try:
-        from numpy.linalg import _umath_linalg
-        from numpy.linalg.linalg import _raise_linalgerror_lstsq, get_linalg_error_extobj
-
-        gufunc = _umath_linalg.lstsq_m
-        extobj = get_linalg_error_extobj(_raise_linalgerror_lstsq)
-
-        def fast(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-            return gufunc(a, b[:, None], -1.0, signature="ddd->ddid", extobj=extobj)[0][:, 0]
-
-        check = np.random.default_rng(0).standard_normal((3, 6))
-        a, b = check.T @ check, check.T @ np.arange(3.0)
-        if np.array_equal(fast(a, b), _numpy_lstsq(a, b)):
-            return fast
-    except (ImportError, AttributeError, TypeError):
-        pass
-    return _numpy_lstsq
-
-
-_lstsq = _make_lstsq()
+_norm3, _norm = mujoco.mju_norm3, mujoco.mju_norm
+_mul_mat_mat_t, _mul_mat_t_vec = mujoco.mju_mulMatMatT, mujoco.mju_mulMatTVec
+_chol_factor, _chol_solve = mujoco.mju_cholFactor, mujoco.mju_cholSolve
+#: Smallest pivot of the Cholesky factorisation (MuJoCo's mjMINVAL): a singular J J' (an arm
+#: singularity without regularisation) gives a large but finite step, which the update-norm
+#: clamp then limits.
+_MINDIAG = mujoco.mjMINVAL

@@ -1,34 +1,38 @@
-"""A lean control step of the tabletop world, bit-identical to robosuite's ``env.step``.
+"""A lean control step of the tabletop world: robosuite's ``env.step``, CPU-independent.
 
 :class:`LeanStepper` advances a :class:`~vp2.envs._tabletop_world.TabletopWorld` by one control
-step with exactly the arithmetic of robosuite's ``env.step`` -- the controllers' own
-``set_goal`` for the new action, then per physics step the same NumPy/numba operations in the
-same order for the torques and the same ``mj_step1``/``mj_step2`` split -- but without
-robosuite's per-substep bookkeeping (observables, action-dimension properties, proprioception
-buffers, repeated Jacobian queries by name). The result is bit-identical to robosuite's step;
-``tests/envs/test_tabletop.py`` checks it.
+step with the computation of robosuite's ``env.step`` -- the controllers' goals for the new
+action, then per physics step the operational-space torques and the same ``mj_step1``/``mj_step2``
+split -- but without robosuite's per-substep bookkeeping (observables, action-dimension
+properties, proprioception buffers, repeated Jacobian queries by name). robosuite computes its
+goals and torques with ``np.dot``/``np.linalg.inv``/``np.linalg.pinv``, i.e. OpenBLAS and LAPACK
+kernels that numpy and scipy choose by CPU at run time; the last bits of its trajectories, and
+through the contacts the trajectories themselves, depend on the machine. Here the goal is
+computed element-wise and the torques by :func:`vp2.envs._osc_kernel.osc_torques` (fixed-order
+loops compiled by numba): the same bits on every CPU. Against robosuite's own step the states
+agree to rounding (5e-16 after one step, ~1e-12 after 30 random steps: as close as robosuite
+agrees with itself on another OpenBLAS kernel; ``tests/envs/test_tabletop.py``).
 """
 
 from __future__ import annotations
 
 import mujoco
 import numpy as np
-from robosuite.utils.control_utils import nullspace_torques, opspace_matrices, orientation_error
 
+from vp2.envs._osc_kernel import osc_torques
 from vp2.envs._tabletop_world import TabletopWorld
 
 
 class LeanStepper:
-    """One control step of a :class:`TabletopWorld`, bit-identical to robosuite's ``env.step``.
+    """One control step of a :class:`TabletopWorld`: robosuite's ``env.step``, CPU-independent.
 
     robosuite's step spends most of its time outside the physics: per physics step (25 per
     control step) it re-queries Jacobians by site name four times, recomputes action limits,
     updates every observable, and pushes proprioception buffers. This class keeps only what
-    changes the simulation: at the first physics step the controllers' own ``set_goal`` (so the
-    goal arithmetic is robosuite's code), then at every physics step the operational-space
-    torques computed with the same operations, in the same order, on arrays of the same
-    layout as ``OperationalSpaceController.run_controller`` (the numba kernels are robosuite's
-    own), and the same gripper command.
+    changes the simulation: at the first physics step the goals (the gripper's by robosuite's
+    own ``set_goal``, the arm's by :meth:`_set_goal`), then at every physics step the
+    operational-space torques of ``OperationalSpaceController.run_controller`` in fixed-order
+    arithmetic, and the same gripper command.
 
     State that robosuite keeps between control steps and that changes what a step does:
     the gripper's accumulated command (``PandaGripper.current_action``) and the nullspace target
@@ -75,10 +79,17 @@ class LeanStepper:
         self._jacp = np.zeros((3, nv))
         self._jacr = np.zeros((3, nv))
         self._full_mass = np.zeros((nv, nv))
-        self._kp_pos = np.array(osc.kp[0:3])
-        self._kp_ori = np.array(osc.kp[3:6])
-        self._kd_pos = osc.kd[0:3]
-        self._kd_ori = osc.kd[3:6]
+        self._kp_pos = np.array(osc.kp[0:3], np.float64)
+        self._kp_ori = np.array(osc.kp[3:6], np.float64)
+        self._kd_pos = np.array(osc.kd[0:3], np.float64)
+        self._kd_ori = np.array(osc.kd[3:6], np.float64)
+        self._jacp_c = np.zeros((3, nv))
+        self._jacr_c = np.zeros((3, nv))
+        self._torques = np.zeros(len(self._qvel_index))
+        start, end = self.composite._action_split_indexes[self.osc.part_name]
+        self._arm_action = slice(start, end)
+        start, end = self.composite._action_split_indexes["right_gripper"]
+        self._grip_action = slice(start, end)
 
     # ---- controller state --------------------------------------------------------------------
     def controller_state(self) -> np.ndarray:
@@ -108,12 +119,7 @@ class LeanStepper:
         """Advances one control step (``n_substeps`` physics steps) with a 4-D action."""
         m, d = self.model, self.data
         mujoco.mj_step1(m, d)
-        # robosuite's own goal arithmetic, once per control step, on fresh simulator data.
-        self.osc.new_update = True
-        self.grip.new_update = True
-        self.composite.update_state()
-        self.composite.set_goal(action)
-        goal_pos, goal_ori = self.osc.goal_pos, self.osc.goal_ori
+        goal_pos, goal_ori = self._set_goal(action)
         grip_ctrl = np.clip(
             self._grip_bias + self._grip_weight * np.array(self.grip.goal_qvel),
             self._grip_low,
@@ -132,57 +138,51 @@ class LeanStepper:
         self.osc.new_update = True
         self.grip.new_update = True
 
-    def _osc_torques(self, goal_pos: np.ndarray, goal_ori: np.ndarray) -> np.ndarray:
-        """``OperationalSpaceController.run_controller`` (+ ``update``), operation for operation.
+    def _set_goal(self, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """robosuite's ``composite.set_goal`` for the OSC ("achieved" mode, "base" frame) and the
+        gripper, on fresh simulator data; returns the OSC goal (position, orientation matrix)
+        in the base frame.
 
-        Element-wise arithmetic may read MuJoCo's arrays in place; everything that goes into a
-        matrix product (BLAS) or one of robosuite's numba kernels is a fresh C-ordered copy, as
-        in robosuite, because those may round differently for other layouts.
+        The gripper part is robosuite's own code (element-wise). The arm goal is
+        ``OperationalSpaceController.compute_goal_pos/compute_goal_ori`` written out in
+        fixed-order arithmetic: robosuite composes 4x4 poses with ``np.dot`` (OpenBLAS, CPU-
+        dependent rounding). Goal position: ``R' (p_ee - p_base) + scaled delta``; goal
+        orientation: ``R' R_ee`` (the rotation of a zero orientation delta is the identity).
         """
-        m, d = self.model, self.data
-        qvel = d.qvel
-        qvel_index = self._qvel_index
-        jacp, jacr = self._jacp, self._jacr
-
-        # CompositeController.update_state -> origin of the base frame.
+        d = self.data
+        self.grip.new_update = True
+        self.grip.set_goal(self.gripper_model.format_action(action[self._grip_action]))
         origin_pos = d.site_xpos[self._center_site]
-        origin_ori = np.array(d.site_xmat[self._center_site].reshape([3, 3]))
-        mujoco.mj_jacSite(m, d, jacp, jacr, self._center_site)
-        base_pos_vel = np.dot(jacp, qvel)
-        base_ori_vel = np.dot(jacr, qvel)
-
-        # Controller.update: end-effector site pose, velocity, Jacobians, arm mass matrix.
+        origin_ori = d.site_xmat[self._center_site].reshape(3, 3)
         ref_pos = d.site_xpos[self._ref_site]
-        ref_ori_mat = np.array(d.site_xmat[self._ref_site].reshape([3, 3]))
-        mujoco.mj_jacSite(m, d, jacp, jacr, self._ref_site)
-        ref_pos_vel = np.dot(jacp, qvel)
-        ref_ori_vel = np.dot(jacr, qvel)
-        # robosuite copies the Jacobians into preallocated C-ordered arrays; numba compiles
-        # (and rounds) differently for other layouts, so the layout must match, not just values.
-        j_pos = np.ascontiguousarray(jacp[:, qvel_index])
-        j_ori = np.ascontiguousarray(jacr[:, qvel_index])
-        j_full = np.concatenate([j_pos, j_ori])
-        joint_pos = d.qpos[self._qpos_index]
-        joint_vel = qvel[qvel_index]
-        mujoco.mj_fullM(m, self._full_mass, d.qM)
-        mass_matrix = self._full_mass[qvel_index, :][:, qvel_index]
+        ref_ori = d.site_xmat[self._ref_site].reshape(3, 3)
+        rel = ref_pos - origin_pos
+        goal_pos = (
+            origin_ori[0] * rel[0] + origin_ori[1] * rel[1] + origin_ori[2] * rel[2]
+        ) + self.osc.scale_action(action[self._arm_action])
+        goal_ori = (
+            origin_ori[0][:, None] * ref_ori[0][None, :]
+            + origin_ori[1][:, None] * ref_ori[1][None, :]
+            + origin_ori[2][:, None] * ref_ori[2][None, :]
+        )
+        self.osc.goal_pos, self.osc.goal_ori = goal_pos, goal_ori
+        return goal_pos, goal_ori
 
-        # OperationalSpaceController.run_controller ("base" input frame, no interpolator).
-        desired_world_pos = origin_pos + np.dot(origin_ori, goal_pos)
-        desired_world_ori = np.dot(origin_ori, goal_ori)
-        ori_error = orientation_error(desired_world_ori, ref_ori_mat)
-        desired_force = (desired_world_pos - ref_pos) * self._kp_pos + (
-            -(ref_pos_vel - base_pos_vel)
-        ) * self._kd_pos
-        desired_torque = ori_error * self._kp_ori + (-(ref_ori_vel - base_ori_vel)) * self._kd_ori
-        _, lambda_pos, lambda_ori, nullspace_matrix = opspace_matrices(
-            mass_matrix, j_full, j_pos, j_ori
-        )
-        decoupled_wrench = np.concatenate(
-            [np.dot(lambda_pos, desired_force), np.dot(lambda_ori, desired_torque)]
-        )
-        torques = np.dot(j_full.T, decoupled_wrench) + d.qfrc_bias[qvel_index]
-        torques += nullspace_torques(
-            mass_matrix, nullspace_matrix, self.osc.initial_joint, joint_pos, joint_vel
-        )
-        return torques
+    def _osc_torques(self, goal_pos: np.ndarray, goal_ori: np.ndarray) -> np.ndarray:
+        """``OperationalSpaceController.run_controller`` (+ ``update``) for the current physics
+        state, computed by :func:`vp2.envs._osc_kernel.osc_torques` (fixed-order arithmetic,
+        the same bits on every CPU)."""
+        m, d = self.model, self.data
+        mujoco.mj_jacSite(m, d, self._jacp_c, self._jacr_c, self._center_site)
+        mujoco.mj_jacSite(m, d, self._jacp, self._jacr, self._ref_site)
+        mujoco.mj_fullM(m, self._full_mass, d.qM)
+        osc_torques(
+            d.qpos, d.qvel, d.qfrc_bias, self._full_mass,
+            self._jacp_c, self._jacr_c, self._jacp, self._jacr,
+            self._qpos_index, self._qvel_index,
+            d.site_xpos[self._center_site], d.site_xmat[self._center_site].reshape(3, 3),
+            d.site_xpos[self._ref_site], d.site_xmat[self._ref_site].reshape(3, 3),
+            goal_pos, goal_ori, self._kp_pos, self._kd_pos, self._kp_ori, self._kd_ori,
+            self.osc.initial_joint, self._torques,
+        )  # fmt: skip
+        return self._torques

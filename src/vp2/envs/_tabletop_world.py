@@ -33,6 +33,8 @@ from robosuite.models.objects import BallObject, BoxObject, CylinderObject  # no
 from robosuite.models.tasks import ManipulationTask  # noqa: E402
 from robosuite.utils.mjcf_utils import TEXTURES, xml_path_completion  # noqa: E402
 
+from vp2.utils.fixedmath import norm  # noqa: E402
+
 # robosuite logs an INFO line (the controller config path) on every construction.
 logging.getLogger("robosuite_logs").setLevel(logging.WARNING)
 
@@ -137,9 +139,9 @@ _HIDDEN_GEOM_GROUP = 5
 def _look_at_quat(pos: tuple[float, ...], target: tuple[float, ...]) -> np.ndarray:
     """Quaternion (w, x, y, z) of a MuJoCo camera at ``pos`` looking at ``target``, z up."""
     back = np.asarray(pos, np.float64) - np.asarray(target, np.float64)
-    back /= np.linalg.norm(back)  # a MuJoCo camera looks along its -z axis
+    back /= norm(back)  # a MuJoCo camera looks along its -z axis
     right = np.cross(np.array([0.0, 0.0, 1.0]), back)
-    right /= np.linalg.norm(right)
+    right /= norm(right)
     up = np.cross(back, right)
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.stack([right, up, back], axis=1).reshape(-1))

@@ -113,7 +113,12 @@ def _source_mesh(model: mujoco.MjModel, i: int) -> tuple[np.ndarray, np.ndarray]
     # The compiler stores vert_compiled = R(quat)^T (vert_file * scale - pos).
     rot = np.empty(9)
     mujoco.mju_quat2Mat(rot, model.mesh_quat[i])
-    vert = vert @ rot.reshape(3, 3).T + model.mesh_pos[i]
+    # vert @ R' + pos with the three terms added in order (a BLAS matrix product rounds
+    # differently per CPU kernel, and the vertices name the cache file and feed the decimation).
+    rot = rot.reshape(3, 3)
+    vert = (
+        vert[:, 0:1] * rot[:, 0] + vert[:, 1:2] * rot[:, 1] + vert[:, 2:3] * rot[:, 2]
+    ) + model.mesh_pos[i]
     return vert, face
 
 

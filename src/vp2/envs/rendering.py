@@ -136,6 +136,50 @@ def configure_model(model: mujoco.MjModel, spec: RenderSpec, height: int, width:
                 raise ValueError(f"shadow light index {i} out of range: model has {model.nlight}")
             cast[i] = 1
         model.light_castshadow[:] = cast
+    linearize_srgb_textures(model)
+
+
+def _srgb_to_linear_table() -> np.ndarray:
+    # The sRGB transfer function, rounded to 8 bits. Every exact value lies at least 0.0013
+    # from a rounding boundary, so the table is the same whatever libm's pow rounds to.
+    table = []
+    for v in range(256):
+        c = v / 255.0
+        lin = c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
+        table.append(round(lin * 255.0))
+    return np.array(table, np.uint8)
+
+
+_SRGB_TO_LINEAR = _srgb_to_linear_table()
+
+
+def linearize_srgb_textures(model: mujoco.MjModel) -> None:
+    """Re-encodes the model's sRGB textures as linear ones (in place; a render-only copy).
+
+    MuJoCo uploads a 2D sRGB texture as ``GL_SRGB8`` and has GL build its mipmaps. Mesa's
+    llvmpipe encodes each generated mip level back to sRGB with an approximation built on the
+    x86 ``rsqrtps`` instruction, whose result differs between CPU vendors (Intel and AMD round
+    it differently): the minified texture, and so the image, depended on the CPU. Decoding the
+    texels to linear values here (the same decode GL applies when sampling, rounded to 8 bits)
+    and uploading them as a linear texture keeps the look and leaves mipmap generation to plain
+    averaging.
+    """
+    srgb = mujoco.mjtColorSpace.mjCOLORSPACE_SRGB
+    # MuJoCo honours the colour space for 2D textures only; cube and skybox textures are
+    # uploaded as GL_RGB whatever it says, so they are left alone.
+    uploaded_as_srgb = (model.tex_colorspace == srgb) & (
+        model.tex_type == mujoco.mjtTexture.mjTEXTURE_2D
+    )
+    for i in np.flatnonzero(uploaded_as_srgb):
+        start = int(model.tex_adr[i])
+        size = int(model.tex_width[i]) * int(model.tex_height[i]) * int(model.tex_nchannel[i])
+        data = model.tex_data[start : start + size]
+        if model.tex_nchannel[i] == 4:  # alpha is linear already
+            rgb = data.reshape(-1, 4)[:, :3]
+            rgb[:] = _SRGB_TO_LINEAR[rgb]
+        else:
+            data[:] = _SRGB_TO_LINEAR[data]
+        model.tex_colorspace[i] = mujoco.mjtColorSpace.mjCOLORSPACE_LINEAR
 
 
 # GL contexts must be freed before the interpreter tears EGL down, or it prints errors at exit.

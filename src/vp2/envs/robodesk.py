@@ -31,7 +31,6 @@ The physics and render-only models and the camera's :data:`RENDER_SPEC` are buil
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -68,6 +67,9 @@ DENSE_LABEL_THRESHOLD = 30.0
 # Initial-state distribution of the package (``RoboDesk.reset``).
 INIT_ROBOT_QPOS = np.array([-0.30, -0.4, 0.28, -2.5, 0.13, 1.87, 0.91, 0.01, 0.01])
 INIT_ROBOT_NOISE = 0.15  # times a uniform draw over each actuator's control range
+# Norms of 3-vectors with MuJoCo's compiled arithmetic: np.linalg.norm / ndarray.dot go through
+# OpenBLAS, whose kernel (and so the last bit) depends on the CPU.
+_norm3 = mujoco.mju_norm3
 
 
 class RoboDeskEnv(Env):
@@ -345,7 +347,7 @@ class RoboDeskEnv(Env):
         d, ee = self.data, self._ee_xpos
 
         def reach(point: np.ndarray) -> float:  # 1 at the point, 0 a metre or more away
-            return min(1.0, max(0.0, 1.0 - float(np.linalg.norm(ee - point))))
+            return min(1.0, max(0.0, 1.0 - _norm3(ee - point)))
 
         if task.success == "button_pressed":
             pressed = self._make_success_fn(task)
@@ -374,7 +376,7 @@ class RoboDeskEnv(Env):
         def off_table_reward() -> float:
             pushed = 1.0 - d.xpos[body][2] / self._original_pos[target][2]
             stay = sum(
-                0.1 * (1.0 - float(np.linalg.norm(d.xpos[self._object_bodies[i]] - self._original_pos[i])) / 5.0)
+                0.1 * (1.0 - _norm3(d.xpos[self._object_bodies[i]] - self._original_pos[i]) / 5.0)
                 for i in others
             )
             progress = min(1.0, max(0.0, 0.8 * pushed + stay))
@@ -384,7 +386,7 @@ class RoboDeskEnv(Env):
 
     def _did_not_move(self, i: int) -> bool:
         moved = self.data.xpos[self._object_bodies[i]] - self._original_pos[i]
-        return math.sqrt(moved.dot(moved)) < DID_NOT_MOVE_WITHIN
+        return _norm3(moved) < DID_NOT_MOVE_WITHIN
 
     def dense_reward(self) -> float:
         """The package's dense reward of the task on the current state (one action repeat)."""

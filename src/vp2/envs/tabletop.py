@@ -35,6 +35,7 @@ come from the shared :class:`~vp2.envs.rendering.Renderer` with :data:`RENDER_SP
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import mujoco
@@ -55,6 +56,7 @@ from vp2.envs._tabletop_world import (
 from vp2.envs.base import Env
 from vp2.envs.rendering import SOFTWARE_RENDERING, Renderer, RenderSpec
 from vp2.envs.tasks import TABLETOP_TASKS, get_task
+from vp2.utils.fixedmath import rows_norm
 
 __all__ = [
     "ARM_INIT_NOISE",
@@ -217,7 +219,7 @@ class TabletopEnv(Env):
                 [rng.uniform(x0, x1, len(OBJECT_NAMES)), rng.uniform(y0, y1, len(OBJECT_NAMES))],
                 axis=1,
             )
-            dist = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
+            dist = rows_norm(xy[:, None] - xy[None])
             need = radii[:, None] + radii[None] + PLACEMENT_GAP
             np.fill_diagonal(need, 0.0)
             if np.all(dist >= need):
@@ -242,12 +244,8 @@ class TabletopEnv(Env):
                 object_xy[k, 1],
                 TABLE_TOP_Z + OBJECT_REST_HEIGHT[name],
             )
-            d.qpos[adr + 3 : adr + 7] = (
-                np.cos(object_yaw[k] / 2),
-                0.0,
-                0.0,
-                np.sin(object_yaw[k] / 2),
-            )
+            half_yaw = float(object_yaw[k]) / 2
+            d.qpos[adr + 3 : adr + 7] = (math.cos(half_yaw), 0.0, 0.0, math.sin(half_yaw))
         mujoco.mj_forward(m, d)
         self._set_textures(np.asarray(textures))
         self._stepper.reset_controllers(np.array(arm_qpos, np.float64))
@@ -364,7 +362,7 @@ class TabletopEnv(Env):
     def goal_distance(positions: np.ndarray, goal_state: np.ndarray) -> float:
         """Largest distance of an object in ``positions`` ``(4, 3)`` from its goal position."""
         goal = TabletopEnv.object_positions_from_state(goal_state)
-        return float(np.max(np.linalg.norm(np.asarray(positions) - goal, axis=-1)))
+        return float(np.max(rows_norm(np.asarray(positions) - goal)))
 
     def is_success(self, goal_state: np.ndarray | None = None) -> bool:
         """All objects within :data:`SUCCESS_THRESHOLD` of their goal positions.

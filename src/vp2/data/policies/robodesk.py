@@ -30,6 +30,7 @@ from vp2.data.policies.base import ROBODESK_NOISE, NoisyPolicy, ScriptedPolicy
 from vp2.envs.base import Env
 from vp2.envs.robodesk import TASKS, RoboDeskEnv
 from vp2.envs.tasks import get_task
+from vp2.utils.fixedmath import norm
 
 #: End-effector displacement per env step for a unit action (m), measured on free motion.
 EE_SPEED = 0.082
@@ -96,8 +97,8 @@ class RoboDeskPolicy(ScriptedPolicy):
         straight at the target, which keeps it off obstacles next to the straight line.
         """
         v = np.asarray(delta, dtype=np.float64) * (gain / EE_SPEED)
-        norm = float(np.linalg.norm(v))
-        return v / norm if norm > 1.0 else v
+        length = norm(v)
+        return v / length if length > 1.0 else v
 
     def toward(self, target: np.ndarray, point: np.ndarray, gain: float = 0.8) -> np.ndarray:
         """Action moving ``point`` (a point on the hand) to ``target``."""
@@ -117,7 +118,7 @@ class RoboDeskPolicy(ScriptedPolicy):
         ee = self.env.end_effector_pos
         out = ee - SHOULDER
         out[2] = 0.0
-        out /= max(float(np.linalg.norm(out)), 1e-6)
+        out /= max(norm(out), 1e-6)
         return 0.5 * out + np.array([0.0, 0.0, float(np.clip((0.85 - ee[2]) * 5.0, -0.5, 0.5))])
 
 
@@ -145,7 +146,7 @@ class PushButtonPolicy(RoboDeskPolicy):
         button = self.env.body_pos(f"{self.color}_button") + self.offset
         ee = self.env.end_effector_pos
         above = button + np.array([0.0, 0.0, self.hover])
-        if self.phase == "above" and np.linalg.norm((ee - above)[:2]) < 0.02:
+        if self.phase == "above" and norm((ee - above)[:2]) < 0.02:
             self.phase = "press"
         # The site is ~5 cm above the fingertips: aiming it at the button presses it ~5 cm deep,
         # i.e. as far as it goes (the button travels 5 mm).
@@ -177,7 +178,7 @@ class OpenSlidePolicy(RoboDeskPolicy):
             # Come in from the front, left of the handle, so as not to push it the wrong way.
             if ee[1] < handle[1] - 0.06 and abs(ee[0] - start[0]) > 0.03:
                 target[1] = handle[1] - 0.12
-            if np.linalg.norm(ee - start) < 0.03:
+            if norm(ee - start) < 0.03:
                 self.phase = "push"
         if self.phase == "push":
             target = np.array([handle[0] + 0.3, handle[1] + 0.01, start[2]])
@@ -264,7 +265,7 @@ class OpenDrawerPolicy(RoboDeskPolicy):
             target = np.array([x, tip_y(self.STAGE_Z), self.STAGE_Z])
             if mode == "bar" and tip[2] < self.STAGE_Z - 0.03:
                 target = np.array([tip[0], tip[1], self.STAGE_Z])  # up first, then over
-            if np.linalg.norm(target - tip) < 0.02 and abs(wrist_error) < 0.2:
+            if norm(target - tip) < 0.02 and abs(wrist_error) < 0.2:
                 self.phase = "descend"
         if self.phase == "descend":
             target = np.array([x, tip_y(tip_z), tip_z])
@@ -332,10 +333,10 @@ class PushOffTablePolicy(RoboDeskPolicy):
         )
         if self.phase == "above":
             target = np.array([start[0], start[1], g["clear_z"]])
-            far = np.linalg.norm((target - tip)[:2]) > 0.05
+            far = norm((target - tip)[:2]) > 0.05
             if far and tip[2] < g["clear_z"] - 0.05:
                 target = np.array([tip[0], tip[1], g["clear_z"]])  # up before moving over
-            if not far and np.linalg.norm((target - tip)[:2]) < 0.02 and abs(wrist_error) < 0.2:
+            if not far and norm((target - tip)[:2]) < 0.02 and abs(wrist_error) < 0.2:
                 self.phase = "descend"
         if self.phase == "descend":
             target = start

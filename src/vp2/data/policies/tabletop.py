@@ -35,6 +35,7 @@ policy in :class:`~vp2.data.policies.base.NoisyPolicy` (``vp2.data.policies.make
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -49,6 +50,7 @@ from vp2.envs._tabletop_world import (
     TABLE_TOP_Z,
 )
 from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
+from vp2.utils.fixedmath import dot, matvec, norm
 
 __all__ = [
     "DONE_TOLERANCE",
@@ -103,12 +105,8 @@ _MAX_DIRECTION_DRAWS = 100
 _MAX_OBJECT_DRAWS = 20
 
 
-_DISK_NORMALS = np.stack(
-    [
-        np.cos(np.linspace(0, 2 * np.pi, 72, endpoint=False)),
-        np.sin(np.linspace(0, 2 * np.pi, 72, endpoint=False)),
-    ],
-    axis=1,
+_DISK_NORMALS = np.array(
+    [[math.cos(a), math.sin(a)] for a in np.linspace(0, 2 * np.pi, 72, endpoint=False).tolist()]
 )
 _AXIS_NORMALS = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
 
@@ -120,7 +118,7 @@ def _pusher_vertex(u: np.ndarray) -> np.ndarray:
     in between so that the aim does not jump when the direction wobbles.
     """
     (x0, x1), (y0, y1) = _FINGERS_BOX
-    soft = np.tanh(np.asarray(u) / _CORNER_SOFTNESS)
+    soft = [math.tanh(x / _CORNER_SOFTNESS) for x in np.asarray(u, np.float64).tolist()]
     return np.array(
         [(x0 + x1) / 2 + (x1 - x0) / 2 * soft[0], (y0 + y1) / 2 + (y1 - y0) / 2 * soft[1]]
     )
@@ -129,8 +127,8 @@ def _pusher_vertex(u: np.ndarray) -> np.ndarray:
 def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     """Distance from point ``p`` to the segment ``[a, b]`` (2-D)."""
     ab = b - a
-    t = float(np.clip((p - a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0))
-    return float(np.linalg.norm(p - (a + t * ab)))
+    t = float(np.clip(dot(p - a, ab) / max(dot(ab, ab), 1e-12), 0.0, 1.0))
+    return norm(p - (a + t * ab))
 
 
 def _box_support(
@@ -155,8 +153,9 @@ def _footprint(
         r = size[0] if radius is None else radius
         return _DISK_NORMALS, np.full(len(_DISK_NORMALS), r)
     w, x, y, z = quat
-    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    c, s = np.cos(yaw), np.sin(yaw)
+    w, x, y, z = (float(q) for q in (w, x, y, z))
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    c, s = math.cos(yaw), math.sin(yaw)
     normals = np.array([[c, s], [-c, -s], [-s, c], [s, -c]])
     return normals, np.full(4, size[0])
 
@@ -168,7 +167,7 @@ def _section_support(
     if len(obj_normals) == len(_DISK_NORMALS):
         return np.full(len(normals), obj_support[0])
     a = obj_support[0]  # a square of half side a; rows 0 and 2 are its two facet directions
-    return a * (np.abs(normals @ obj_normals[0]) + np.abs(normals @ obj_normals[2]))
+    return a * (np.abs(matvec(normals, obj_normals[0])) + np.abs(matvec(normals, obj_normals[2])))
 
 
 def _ray_cast(
@@ -191,7 +190,7 @@ def _ray_cast(
             _box_support(box, obj_normals) + obj_support,
         ]
     )
-    cos = normals @ u
+    cos = matvec(normals, u)
     ahead = cos > 1e-9
     return float(np.min(support[ahead] / cos[ahead]))
 
@@ -209,7 +208,7 @@ def _contact_distance(name: str, quat: np.ndarray, u: np.ndarray) -> float:
         radius = None
         if name == "sphere":
             r = OBJECT_SIZES["sphere"][0]
-            radius = float(np.sqrt(max(r * r - (hand_z - r) ** 2, 0.0)))
+            radius = math.sqrt(max(r * r - (hand_z - r) * (hand_z - r), 0.0))
         dist = max(dist, _ray_cast(_HAND_BOX, _footprint(name, quat, radius), u))
     return dist
 
@@ -282,7 +281,7 @@ class TabletopPushPolicy(ScriptedPolicy):
         fallback = None
         for _ in range(_MAX_DIRECTION_DRAWS):
             theta = float(self.rng.uniform(0.0, np.pi))
-            u = np.array([np.cos(theta), np.sin(theta)])
+            u = np.array([math.cos(theta), math.sin(theta)])
             target = start + self.push_distance * u
             if not (x0 <= target[0] <= x1 and y0 <= target[1] <= y1):
                 continue
@@ -323,7 +322,7 @@ class TabletopPushPolicy(ScriptedPolicy):
     def _set_target(self, theta: float, target: np.ndarray) -> None:
         self.theta = theta
         self.target_xy = target
-        self.push_direction = np.array([np.cos(theta), np.sin(theta)])
+        self.push_direction = np.array([math.cos(theta), math.sin(theta)])
 
     # ---- goal --------------------------------------------------------------------------------
     def goal_positions(self) -> np.ndarray:
@@ -344,7 +343,7 @@ class TabletopPushPolicy(ScriptedPolicy):
         obj = env.object_positions()[k]
         ee = env.end_effector_position()
         to_target = self.target_xy - obj[:2]
-        dist = float(np.linalg.norm(to_target))
+        dist = norm(to_target)
         u = to_target / dist if dist > 1e-6 else self._last_u
         self._last_u = u
         name = OBJECT_NAMES[k]
@@ -358,7 +357,7 @@ class TabletopPushPolicy(ScriptedPolicy):
         behind = touching - _APPROACH_GAP * u
         # The contact point relative to the object, along and across the push line.
         rel = ee[:2] + vertex - obj[:2]
-        along = float(rel @ u)
+        along = dot(rel, u)
         across_signed = float(rel[0] * u[1] - rel[1] * u[0])  # > 0: right of the line
 
         if self.phase == "done" and dist > 2 * DONE_TOLERANCE:
@@ -370,14 +369,14 @@ class TabletopPushPolicy(ScriptedPolicy):
         ):
             # The gripper slipped past or off the object: go around again from above.
             self.phase = "approach"
-        if self.phase == "approach" and np.linalg.norm(ee[:2] - behind) < 0.015:
+        if self.phase == "approach" and norm(ee[:2] - behind) < 0.015:
             self.phase = "descend"
         if self.phase == "descend" and ee[2] < _Z_PUSH + 0.01:
             self.phase = "push"
 
         if self.phase == "approach":
             # Rise first if low next to the object, so as not to sweep through it on the way.
-            near = np.linalg.norm(ee[:2] - obj[:2]) < reach + 0.08
+            near = norm(ee[:2] - obj[:2]) < reach + 0.08
             low_and_near = ee[2] < _Z_SAFE - 0.03 and near
             desired = (
                 np.array([ee[0], ee[1], _Z_SAFE]) if low_and_near else np.append(behind, _Z_SAFE)
@@ -397,7 +396,7 @@ class TabletopPushPolicy(ScriptedPolicy):
             desired = ee.copy()
 
         _, base_rot = env.base_frame()
-        delta = base_rot.T @ (desired - ee)  # actions are expressed in the robot base frame
+        delta = matvec(base_rot.T, desired - ee)  # actions are expressed in the robot base frame
         action = np.empty(4)
         command = _GAIN * delta
         # Scale (not clip per axis) so that a saturated command keeps its direction.

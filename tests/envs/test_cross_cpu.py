@@ -1,0 +1,76 @@
+"""The simulation path gives the same bits whatever kernels the CPU-dispatched libraries pick.
+
+A machine cannot run another CPU, but the libraries that choose code by CPU at run time can be
+forced to the choices other CPUs make: OpenBLAS (numpy's and scipy's, ``OPENBLAS_CORETYPE``),
+NumPy's SIMD loops (``NPY_DISABLE_CPU_FEATURES``), numba's code generation
+(``NUMBA_CPU_NAME``) and Mesa llvmpipe's (``GALLIUM_OVERRIDE_CPU_CAPS``). Each variant
+regenerates the first instance of every task category in a fresh process (fresh mesh cache);
+states, actions and goal images must be identical to the machine's own defaults.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+_AVX512 = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL"
+VARIANTS = {
+    "own": {},
+    "openblas_nehalem": {"OPENBLAS_CORETYPE": "Nehalem"},
+    "openblas_haswell": {"OPENBLAS_CORETYPE": "Haswell"},
+    "numpy_avx2": {"NPY_DISABLE_CPU_FEATURES": _AVX512},
+    "numba_generic": {"NUMBA_CPU_NAME": "generic"},
+    # An AVX2 machine as far as every library can be told so at once.
+    "avx2_machine": {
+        "OPENBLAS_CORETYPE": "Haswell",
+        "NPY_DISABLE_CPU_FEATURES": _AVX512,
+        "NUMBA_CPU_NAME": "haswell",
+        "GALLIUM_OVERRIDE_CPU_CAPS": "avx",
+    },
+}
+
+_SCRIPT = textwrap.dedent(
+    """
+    import hashlib, json
+    import numpy as np
+    from vp2.data.suite import TaskSuite, generate_instance
+    out, suite = {}, TaskSuite.load()
+    for task in suite.tasks:
+        seed = suite.for_task(task)[0].seed
+        inst = generate_instance(task, seed, index=0)
+        h = hashlib.sha256()
+        for a in (inst.init_state, inst.goal_state, inst.goal_image, inst.actions):
+            h.update(np.ascontiguousarray(a).tobytes())
+        out[task] = h.hexdigest()
+    print(json.dumps(out))
+    """
+)
+
+
+def _fingerprints(env_overrides: dict[str, str], cache: str) -> dict[str, str]:
+    env = {**os.environ, **env_overrides, "VP2_CACHE_DIR": cache, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run(
+        [sys.executable, "-c", _SCRIPT], env=env, capture_output=True, text=True, check=True
+    )
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+def test_first_instances_are_identical_under_every_cpu_variant(tmp_path):
+    """About 40 s per variant on 2 cores."""
+    results = {
+        name: _fingerprints(overrides, os.fspath(tmp_path / name))
+        for name, overrides in VARIANTS.items()
+    }
+    reference = results["own"]
+    mismatches = {
+        name: sorted(t for t in reference if got[t] != reference[t])
+        for name, got in results.items()
+        if got != reference
+    }
+    assert not mismatches, mismatches
