@@ -140,3 +140,34 @@ def load_into_world(env: TabletopEnv, world: TabletopWorld, stepper: LeanStepper
     world.set_textures(state[n : n + len(OBJECT_NAMES)].astype(np.int64))
     stepper.set_controller_state(state[n + len(OBJECT_NAMES) :])
     mujoco.mj_forward(world.sim.model._model, world.sim.data._data)
+
+
+class _NumpyWithMujocoNorm:
+    """numpy, except ``linalg.norm``: MuJoCo's ``mju_norm`` (fixed summation order)."""
+
+    class linalg:  # noqa: N801
+        @staticmethod
+        def norm(v: Any) -> float:
+            import mujoco
+            import numpy as np
+
+            return mujoco.mju_norm(np.ascontiguousarray(v, np.float64))
+
+    def __getattr__(self, name: str) -> Any:
+        import numpy as np
+
+        return getattr(np, name)
+
+
+def deterministic_package_ik() -> None:
+    """Gives dm_control's inverse kinematics (which the ``robodesk`` package calls) vp2's
+    CPU-independent arithmetic for its two CPU-dependent pieces: the least-squares step
+    (``numpy.linalg.solve``/``lstsq`` on OpenBLAS) and the vector norms (BLAS). Everything else
+    stays the package's own code, which vp2's RoboDesk env then matches bit for bit."""
+    from dm_control.utils import inverse_kinematics
+
+    from vp2.envs._ik import nullspace_step
+
+    inverse_kinematics.nullspace_method = nullspace_step
+    inverse_kinematics.np = _NumpyWithMujocoNorm()
+

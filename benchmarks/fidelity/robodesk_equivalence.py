@@ -138,7 +138,14 @@ def main() -> None:
     )
     parser.add_argument("--render-states", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--package-ik", choices=["deterministic", "as-is"], default="deterministic",
+        help="the package's IK with vp2's CPU-independent least-squares step and norms "
+        "(default), or as shipped (its last bits then depend on the CPU's OpenBLAS kernel)",
+    )
     args = parser.parse_args()
+    if args.package_ik == "deterministic":
+        common.deterministic_package_ik()
     # dm_control's IK logs every non-converged solve (random actions drive the arm into its
     # joint limits); both implementations take the same path there, the log is noise.
     logging.getLogger("absl").setLevel(logging.ERROR)
@@ -149,7 +156,7 @@ def main() -> None:
     )
     print(
         f"# {args.trajectories} trajectories x {STEPS} uniform random actions per task; "
-        "max over all env steps"
+        f"max over all env steps; the package's IK: {args.package_ik}"
     )
     print(f"{'task':26s} {'joints (rad)':>13s} {'objects (m)':>12s} {'bit-identical steps':>20s}")
     for i, task in enumerate(TASKS):
