@@ -279,10 +279,13 @@ def test_fvd_properties_on_features():
     scale = fvd_from_features(f, g)
     assert scale > 0
     assert fvd_from_features(f, f) == pytest.approx(0, abs=1e-8 * scale)
-    assert fvd_from_features(f, g) == pytest.approx(fvd_from_features(g, f), rel=1e-9)
+    # The covariances are rank-deficient (30 samples, 64 dimensions), so the matrix square root
+    # is ill-conditioned: its last digits follow the BLAS kernel (2e-9 relative between
+    # OpenBLAS's Nehalem and AVX-512 kernels). Symmetry and order invariance hold to 1e-6.
+    assert fvd_from_features(f, g) == pytest.approx(fvd_from_features(g, f), rel=1e-6)
     rng = np.random.default_rng(6)
     perm = rng.permutation(len(f))
-    assert fvd_from_features(f[perm], g) == pytest.approx(scale, rel=1e-9)
+    assert fvd_from_features(f[perm], g) == pytest.approx(scale, rel=1e-6)
     noisy = [fvd_from_features(f, f + s * rng.normal(size=f.shape)) for s in (0.1, 1, 10)]
     assert 0 < noisy[0] < noisy[1] < noisy[2]
     with pytest.raises(ValueError, match="mismatched"):
