@@ -142,32 +142,9 @@ def load_into_world(env: TabletopEnv, world: TabletopWorld, stepper: LeanStepper
     mujoco.mj_forward(world.sim.model._model, world.sim.data._data)
 
 
-class _NumpyWithMujocoNorm:
-    """numpy, except ``linalg.norm``: MuJoCo's ``mju_norm`` (fixed summation order)."""
-
-    class linalg:  # noqa: N801
-        @staticmethod
-        def norm(v: Any) -> float:
-            import mujoco
-            import numpy as np
-
-            return mujoco.mju_norm(np.ascontiguousarray(v, np.float64))
-
-    def __getattr__(self, name: str) -> Any:
-        import numpy as np
-
-        return getattr(np, name)
-
-
 def deterministic_package_ik() -> None:
-    """Gives dm_control's inverse kinematics (which the ``robodesk`` package calls) vp2's
-    CPU-independent arithmetic for its two CPU-dependent pieces: the least-squares step
-    (``numpy.linalg.solve``/``lstsq`` on OpenBLAS) and the vector norms (BLAS). Everything else
-    stays the package's own code, which vp2's RoboDesk env then matches bit for bit."""
-    from dm_control.utils import inverse_kinematics
+    """Gives the ``robodesk`` package's dm_control IK vp2's CPU-independent least-squares step
+    and norms (:func:`vp2.envs._ik.make_dm_control_ik_deterministic`)."""
+    from vp2.envs._ik import make_dm_control_ik_deterministic
 
-    from vp2.envs._ik import nullspace_step
-
-    inverse_kinematics.nullspace_method = nullspace_step
-    inverse_kinematics.np = _NumpyWithMujocoNorm()
-
+    make_dm_control_ik_deterministic()

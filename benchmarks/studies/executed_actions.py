@@ -27,14 +27,14 @@ import numpy as np
 
 from benchmarks import common
 from vp2.benchmark.results import is_ok, trial_key
-from vp2.benchmark.runner import trials_of_run
+from vp2.benchmark.run_dir import RunDir
 
 
 def executed(run_dir: Path) -> dict[tuple, np.ndarray]:
     """``(task, instance, seed) -> (T, A)`` executed actions of a run's finished trials (those
     its config covers, as its summary counts them)."""
     out = {}
-    for record in trials_of_run(run_dir)[0]:
+    for record in RunDir(run_dir).split_trials()[0]:
         if is_ok(record):
             out[trial_key(record)] = np.asarray(record["actions"], dtype=np.float64)
     return out

@@ -160,7 +160,6 @@ def test_resume_with_more_seeds_runs_only_the_new_keys(reference, tmp_path):
 
 
 def test_trials_outside_the_runs_seeds_are_named_and_not_counted(reference, tmp_path):
-    from vp2.benchmark.runner import trials_of_run
     from vp2.report.runs import load_runs
     from vp2.report.study import load_entry
 
@@ -178,14 +177,14 @@ def test_trials_outside_the_runs_seeds_are_named_and_not_counted(reference, tmp_
     (note,) = [w for w in shrunk.summary.warnings if "not counted" in w]
     assert note.startswith("4 trial(s) in") and "tabletop/push_sphere #0 seed 0" in note
     assert "not counted" in (run_dir / "summary.md").read_text()
-    ours, outside = trials_of_run(run_dir)
+    ours, outside = RunDir(run_dir).split_trials()
     assert len(ours) == 2 and sorted(r["seed"] for r in outside) == [0, 0, 1, 1]
     (view,) = load_runs([run_dir])
     assert len(view.records) == 2 and view.outside == note and note in view.summary.warnings
     entry = load_entry("m", run_dir, _metrics_file(tmp_path))
     assert len(entry.records) == 2 and entry.outside == note
     # A directory whose config covers all its trials has no note.
-    assert trials_of_run(reference.run_dir)[1] == [] and load_runs([reference.run_dir])[0].outside is None
+    assert RunDir(reference.run_dir).split_trials()[1] == [] and load_runs([reference.run_dir])[0].outside is None
 
 
 def _metrics_file(tmp_path: Path) -> Path:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from vp2.envs import make_env_from_metadata
-from vp2.envs._ik import SitePositionIK, nullspace_step
+from vp2.envs._ik import SitePositionIK, make_dm_control_ik_deterministic
 from vp2.envs._robodesk_model import RENDER_SPEC, load_model
 from vp2.envs.rendering import Renderer, mean_abs_error
 from vp2.envs.robodesk import IK_JOINTS, OBJECTS, TASKS, RoboDeskEnv
@@ -28,18 +28,6 @@ def env():
         yield e
 
 
-class _NumpyWithMujocoNorm:
-    """numpy, except ``linalg.norm``: MuJoCo's ``mju_norm`` (fixed summation order)."""
-
-    class linalg:  # noqa: N801
-        @staticmethod
-        def norm(v):
-            return mujoco.mju_norm(np.ascontiguousarray(v, np.float64))
-
-    def __getattr__(self, name):
-        return getattr(np, name)
-
-
 @pytest.fixture
 def deterministic_dm_control(monkeypatch):
     """dm_control's IK with its two CPU-dependent pieces replaced by vp2's: the least-squares
@@ -47,8 +35,7 @@ def deterministic_dm_control(monkeypatch):
     else -- the package's control loop, its IK iteration, dm_control's physics -- is the
     package's own code, which vp2 must then match bit for bit."""
     inverse_kinematics = pytest.importorskip("dm_control.utils.inverse_kinematics")
-    monkeypatch.setattr(inverse_kinematics, "nullspace_method", nullspace_step)
-    monkeypatch.setattr(inverse_kinematics, "np", _NumpyWithMujocoNorm())
+    make_dm_control_ik_deterministic(monkeypatch.setattr)
     return inverse_kinematics
 
 

@@ -49,7 +49,6 @@ import collections
 import dataclasses
 import logging
 import operator
-import os
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -303,12 +302,6 @@ def _fail_fast_message(
         f"{failure['expected']}, got {failure['got']}. See {MODEL_DOCS} for the interface. "
         f"{kept} finished trial(s) kept in {run_dir}; fix the model and continue with --resume"
     )
-
-
-def trials_of_run(run_dir: str | os.PathLike[str]) -> tuple[Records, Records]:
-    """The records of a run directory that its ``config.yaml`` covers, and the others
-    (:meth:`RunDir.split_trials <vp2.benchmark.run_dir.RunDir.split_trials>`)."""
-    return RunDir(run_dir).split_trials()
 
 
 def _write_summary(

@@ -23,7 +23,7 @@ agree as closely as the package agrees with itself on another OpenBLAS kernel (d
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import mujoco
 import numpy as np
@@ -199,3 +199,28 @@ _chol_factor, _chol_solve = mujoco.mju_cholFactor, mujoco.mju_cholSolve
 #: singularity without regularisation) gives a large but finite step, which the update-norm
 #: clamp then limits.
 _MINDIAG = mujoco.mjMINVAL
+
+
+class _NumpyWithMujocoNorm:
+    """numpy, except ``linalg.norm``: MuJoCo's ``mju_norm`` (fixed summation order)."""
+
+    class linalg:  # noqa: N801
+        @staticmethod
+        def norm(v: np.ndarray) -> float:
+            return mujoco.mju_norm(np.ascontiguousarray(v, np.float64))
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(np, name)
+
+
+def make_dm_control_ik_deterministic(setattr_: Callable[..., None] = setattr) -> None:
+    """Gives dm_control's inverse kinematics (which the ``robodesk`` package calls) this
+    module's CPU-independent arithmetic for its two CPU-dependent pieces: the least-squares
+    step (:func:`nullspace_step` for ``numpy.linalg.solve``/``lstsq`` on OpenBLAS) and the vector
+    norms (``mju_norm`` for BLAS). Everything else stays dm_control's own code, which
+    :class:`SitePositionIK` then matches bit for bit. ``setattr_``: how to patch (a test's
+    ``monkeypatch.setattr`` undoes it afterwards)."""
+    from dm_control.utils import inverse_kinematics
+
+    setattr_(inverse_kinematics, "nullspace_method", nullspace_step)
+    setattr_(inverse_kinematics, "np", _NumpyWithMujocoNorm())
