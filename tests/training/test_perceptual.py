@@ -54,6 +54,7 @@ def no_default_weights(tmp_path, monkeypatch):
     monkeypatch.delenv(WEIGHTS_ENV, raising=False)
     hub = tmp_path / "hub"
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(hub))
+    monkeypatch.setattr("vp2.training.lpips_weights._package_dir", lambda net: None)
     return hub
 
 

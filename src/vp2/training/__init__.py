@@ -7,8 +7,10 @@ optimiser, intervals) and writes a run directory with checkpoints that
 Modules: :mod:`~vp2.training.config` (the configuration), :mod:`~vp2.training.setup` (building
 or resuming a run), :mod:`~vp2.training.trainer` (the loop), :mod:`~vp2.training.batches` (data
 order and seeds), :mod:`~vp2.training.checkpoint` (resume files), :mod:`~vp2.training.export`
-(inference-only copies), :mod:`~vp2.training.logger` and :mod:`~vp2.training.perceptual`
-(LPIPS, the perceptual loss the metrics share).
+(inference-only copies), :mod:`~vp2.training.logger`, :mod:`~vp2.training.perceptual`
+(LPIPS, the perceptual loss the metrics share) with :mod:`~vp2.training.lpips_weights` (its
+weight files) and :mod:`~vp2.training.weight_files` (where weight files are looked for, and
+how the JAX packages' pickles are read; the I3D of FVD uses it too).
 """
 
 from typing import Any

