@@ -1,155 +1,100 @@
-"""The shipped oracle: building the asset from oracle runs, refusals, loading, and the default
-normalisation of ``vp2 run`` / ``vp2 main`` / ``vp2 report`` (with an injected asset, and
-without one)."""
+"""The shipped oracle's tables: from oracle runs to ``results/oracle`` to the asset, byte for
+byte; refusals; loading. How runs are normalised by it: test_oracle_normalisation.py."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 import pytest
-import yaml
 
 from tests.benchmark import tiny_suite_path
+from tests.benchmark.oracle_fixtures import OUTCOMES, TASK, actions, sha, write_oracle_run
 from vp2 import cli
-from vp2.benchmark.main_job import MainJobConfig, run_main_job
-from vp2.benchmark.results import format_summary, summarize
-from vp2.benchmark.ship_oracle import build_oracle_asset, write_oracle_asset
+from vp2.benchmark.ship_oracle import (
+    asset_text,
+    build_asset,
+    build_oracle_asset,
+    build_table,
+    read_table,
+    table_of,
+    write_oracle_asset,
+    write_table,
+)
 from vp2.benchmark.shipped_oracle import (
     ASSET_FORMAT,
     ENV_VAR,
-    NO_SHIPPED_ORACLE,
     default_asset_path,
     load_shipped_oracle,
-    summarize_run,
 )
 from vp2.data.suite import SUITE_FORMAT, TaskSuite
-from vp2.report.page import write_report
+from vp2.envs.render_specs import render_fingerprint
 
-TASK = "tabletop/push_sphere"
-#: (instance, seed) -> success: per seed 1.0, 0.5, 0.5, so the rate is 2/3 (4 of 6).
-OUTCOMES = {(0, 0): True, (1, 0): True, (0, 1): True, (1, 1): False, (0, 2): True, (1, 2): False}
+REPO = Path(__file__).resolve().parents[2]
 
 
-def _sha(index: int, suite: Path | None = None) -> str:
-    return TaskSuite.load(suite or tiny_suite_path()).get(TASK, index).fingerprint
+def _results(tmp_path: Path) -> Path:
+    """A results tree of two tables: ``spec`` (SPEC samples, rate 2/3) and ``samples-8``."""
+    results = tmp_path / "results" / "oracle"
+    write_table(*build_table([write_oracle_run(tmp_path / "spec-run")], note="spec"), results)
+    eight = write_oracle_run(tmp_path / "eight-run", {(0, 0): True, (1, 0): False},
+                             num_samples=8, day=5)
+    write_table(*build_table([eight]), results)
+    return results
 
 
-def write_oracle_run(
-    run_dir: Path,
-    outcomes: dict[tuple[int, int], bool | None] = OUTCOMES,
-    *,
-    model: str = "simulator",
-    suite: Path | None = None,
-    classifier: dict | None = None,
-    **config_overrides,
-) -> Path:
-    """A simulator-oracle run directory as the runner leaves it (config.yaml, trials.jsonl);
-    an outcome ``None`` is an error record."""
-    suite = suite or tiny_suite_path()
-    run_dir.mkdir(parents=True)
-    config = {
-        "model": model, "agent": "planning", "suite": str(suite), "optimizer": "mppi",
-        "num_samples": None, "gamma": 0.05, "num_iterations": None, "cost": "auto",
-        "num_steps": 15, "seeds": sorted({s for _, s in outcomes}), "oracle": None,
-        **config_overrides,
-    }
-    (run_dir / "config.yaml").write_text(
-        yaml.safe_dump({"vp2_version": "test", "spec_deviations": [], "config": config})
-    )
-    lines = []
-    for (i, s), ok in outcomes.items():
-        record = {
-            "task": TASK, "instance": i, "instance_sha": _sha(i, suite), "seed": s,
-            "success": ok, "cost": "pixel", "num_steps": 15, "vp2_version": "test",
-            "finished_at": f"2026-11-2{s}T10:00:00+00:00",
-            "error": None if ok is not None else {"type": "SimError", "message": "x"},
-        }
-        if classifier is not None:
-            record["agent"] = {"agent": "planning", "classifier": classifier}
-        lines.append(json.dumps(record, sort_keys=True))
-    (run_dir / "trials.jsonl").write_text("\n".join(lines) + "\n")
-    return run_dir
+# --------------------------------------------------------------------------- one table
 
 
-@pytest.fixture
-def asset(tmp_path, monkeypatch) -> Path:
-    """An asset built from a fake oracle run, injected through ``VP2_ORACLE_ASSET``."""
-    path = write_oracle_asset(
-        build_oracle_asset([write_oracle_run(tmp_path / "oracle-run")]), tmp_path / "oracle.json"
-    )
-    monkeypatch.setenv(ENV_VAR, str(path))
-    return path
-
-
-@pytest.fixture
-def no_asset(tmp_path, monkeypatch) -> None:
-    monkeypatch.setenv(ENV_VAR, str(tmp_path / "absent.json"))
-
-
-# --------------------------------------------------------------------------- building
-
-
-def test_build_write_and_load_round_trip(tmp_path):
-    data = build_oracle_asset([write_oracle_run(tmp_path / "run")], note="test runs")
-    assert data["format"] == ASSET_FORMAT and data["suite_format"] == SUITE_FORMAT
-    assert data["date"] == "2026-11-22"  # the last trial's finish
-    assert data["note"] == "test runs" and "num_steps=15" in data["measured_by"]
-    assert data["tasks"] == {
+def test_build_table_records_provenance_and_compact_trials(tmp_path):
+    meta, trials = build_table([write_oracle_run(tmp_path / "run")], note="test runs")
+    assert meta["name"] == "spec"  # every task at the SPEC's count
+    assert meta["suite_format"] == SUITE_FORMAT and meta["date"] == "2026-11-22"
+    assert meta["note"] == "test runs" and meta["vp2_version"] == "test"
+    assert meta["render"] == {"tabletop": render_fingerprint("tabletop")}
+    assert meta["classifiers"] == {} and "num_steps=15" in meta["measured_by"]
+    assert meta["commands"] == [
+        f"vp2 run --model simulator --suite {tiny_suite_path()} --tasks {TASK} "
+        "--num-instances 2 --seeds 0 1 2 --out run"]
+    assert [(r["instance"], r["seed"]) for r in trials] == sorted(OUTCOMES)
+    first = trials[0]
+    assert first == {"task": TASK, "instance": 0, "seed": 0, "instance_sha": sha(0),
+                     "success": True, "first_success_step": 1, "num_steps": 2,
+                     "num_samples": 200, "actions": actions(0, 0)}
+    table = table_of(meta, trials)
+    assert table["tasks"] == {
         TASK: {"successes": 4, "trials": 6, "rate": pytest.approx(2 / 3), "instances": [0, 1],
-               "seeds": [0, 1, 2], "num_samples": 200}  # the SPEC default the run used
-    }
-    assert data["instance_fingerprints"] == {f"{TASK}#0": _sha(0), f"{TASK}#1": _sha(1)}
-    path = write_oracle_asset(data, tmp_path / "sub" / "oracle.json")
-    assert not list(path.parent.glob(".*.tmp"))
-    oracle = load_shipped_oracle(path)
-    assert oracle is not None and oracle.path == path and oracle.date == "2026-11-22"
-    t = oracle.tasks[TASK]
-    assert (t.successes, t.trials, t.instances, t.seeds, t.num_samples) == (
-        4, 6, (0, 1), (0, 1, 2), 200)
-    line = oracle.describe()
-    for part in ("2 instance(s) per task", "200 planner samples", "seed(s) 0, 1, 2",
-                 f"suite {SUITE_FORMAT}", "measured 2026-11-22"):
-        assert part in line
+               "seeds": [0, 1, 2], "num_samples": 200}}
+    assert table["instance_fingerprints"] == {f"{TASK}#0": sha(0), f"{TASK}#1": sha(1)}
+    assert "commands" not in table and table["name"] == "spec"
 
 
-def test_build_combines_runs_and_records_the_samples_they_used(tmp_path):
-    a = write_oracle_run(tmp_path / "a", {k: v for k, v in OUTCOMES.items() if k[1] < 2},
-                         num_samples=8)
-    b = write_oracle_run(tmp_path / "b", {k: v for k, v in OUTCOMES.items() if k[1] == 2},
-                         num_samples=8)
-    data = build_oracle_asset([a, b], date="2027-01-02")
-    assert data["date"] == "2027-01-02"
-    assert data["tasks"][TASK]["num_samples"] == 8 and data["tasks"][TASK]["trials"] == 6
-    assert data["tasks"][TASK]["rate"] == pytest.approx(2 / 3)
+def test_table_names_and_dates(tmp_path):
+    eight = write_oracle_run(tmp_path / "a", {(0, 0): True}, num_samples=8)
+    assert build_table([eight])[0]["name"] == "samples-8"
+    meta, _ = build_table([eight], name="mine", date="2027-01-02")
+    assert (meta["name"], meta["date"]) == ("mine", "2027-01-02")
+    with pytest.raises(ValueError, match="table name 'Bad Name'"):
+        build_table([eight], name="Bad Name")
+    with pytest.raises(ValueError, match="date '2/1/2027': give it as YYYY-MM-DD"):
+        build_table([eight], date="2/1/2027")
 
 
-def test_describe_names_the_tasks_with_other_samples(tmp_path):
-    tasks = {
-        name: {"successes": 1, "trials": 2, "rate": 0.5, "instances": [0], "seeds": [0, 1],
-               "num_samples": n}
-        for name, n in [("robodesk/push_red", 200), ("robodesk/open_slide", 800),
-                        ("robodesk/open_drawer", 800), ("robodesk/push_green", 200),
-                        ("robodesk/push_blue", 200)]
-    }
-    path = write_oracle_asset({"format": ASSET_FORMAT, "suite_format": SUITE_FORMAT,
-                               "date": "2027-01-01", "tasks": tasks, "instance_fingerprints": {}},
-                              tmp_path / "o.json")
-    line = load_shipped_oracle(path).describe()
-    assert "200 planner samples (800 on robodesk/open_drawer, robodesk/open_slide)" in line
-
-
-def test_build_records_the_classifier_and_refuses_mixed_ones(tmp_path):
+def test_the_classifier_is_recorded_and_mixed_ones_refused(tmp_path):
     first = {"sha256": "aaaa", "dataset": "data/d", "heldout_accuracy": 0.98}
-    data = build_oracle_asset([write_oracle_run(tmp_path / "one", classifier=first)])
-    assert data["tasks"][TASK]["classifier"] == first
-    assert "classifier" not in build_oracle_asset(
-        [write_oracle_run(tmp_path / "none")])["tasks"][TASK]
+    meta, trials = build_table([write_oracle_run(tmp_path / "one", classifier=first)])
+    assert meta["classifiers"] == {TASK: first}
+    assert {r["classifier"] for r in trials} == {"aaaa"}
+    assert table_of(meta, trials)["classifiers"] == {TASK: first}
+    # Evidence that disagrees with its meta.json is refused when the asset is built.
+    with pytest.raises(ValueError, match="planned with classifier 'aaaa', meta.json names 'bbbb'"):
+        table_of({**meta, "classifiers": {TASK: {**first, "sha256": "bbbb"}}}, trials)
     a = write_oracle_run(tmp_path / "a", {(0, 0): True}, classifier=first)
     b = write_oracle_run(tmp_path / "b", {(0, 1): True}, classifier={**first, "sha256": "bbbb"})
     with pytest.raises(ValueError, match="2 different success classifiers"):
-        build_oracle_asset([a, b])
+        build_table([a, b])
 
 
 def _other_suite(tmp_path: Path) -> Path:
@@ -174,6 +119,8 @@ def _other_suite(tmp_path: Path) -> Path:
         ("mixed_suites", "mixed task suites"),
         ("duplicate", "is in both"),
         ("settings", "settings"),
+        ("budgets", "different planner samples"),
+        ("render", "another camera or render spec"),
     ],
 )
 def test_build_refuses(tmp_path, case, message):
@@ -191,6 +138,11 @@ def test_build_refuses(tmp_path, case, message):
             write_oracle_run(tmp_path / "a", {(0, 0): True}),
             write_oracle_run(tmp_path / "b", {(0, 1): True}, num_steps=3),
         ],
+        "budgets": lambda: [
+            write_oracle_run(tmp_path / "a", {(0, 0): True}),
+            write_oracle_run(tmp_path / "b", {(0, 1): True}, num_samples=8),
+        ],
+        "render": lambda: [write_oracle_run(tmp_path / "r")],
     }[case]()
     if case == "no_config":
         (runs[0] / "config.yaml").unlink()
@@ -198,33 +150,129 @@ def test_build_refuses(tmp_path, case, message):
         (runs[0] / "config.yaml").write_text(
             (runs[0] / "config.yaml").read_text().replace(
                 str(tmp_path / "other-suite.npz"), str(tiny_suite_path())))
+    if case == "render":  # records that say they rendered differently from this vp2
+        lines = (runs[0] / "trials.jsonl").read_text().splitlines()
+        lines = [json.dumps({**json.loads(x), "render_fingerprint": "0" * 16}) for x in lines]
+        (runs[0] / "trials.jsonl").write_text("\n".join(lines) + "\n")
     with pytest.raises(ValueError, match=message):
-        build_oracle_asset(runs)
+        build_table(runs)
+
+
+# --------------------------------------------------------------------------- results -> asset
+
+
+def test_the_asset_is_rebuilt_from_results_byte_for_byte(tmp_path, monkeypatch):
+    results = _results(tmp_path)
+    assert sorted(p.name for p in (results / "spec").iterdir()) == ["meta.json", "trials.jsonl"]
+    lines = (results / "spec" / "trials.jsonl").read_text().splitlines()
+    assert len(lines) == 6 and all(" " not in x for x in lines)  # compact, one per line
+    asset = build_asset(results)
+    assert asset["format"] == ASSET_FORMAT
+    assert [t["name"] for t in asset["tables"]] == ["samples-8", "spec"]
+    assert [t["date"] for t in asset["tables"]] == ["2026-11-25", "2026-11-22"]  # the records'
+    first = write_oracle_asset(asset, tmp_path / "a" / "oracle.json").read_bytes()
+    # From the files alone: another day, another working directory, files touched.
+    for f in results.rglob("*"):
+        os.utime(f, (0, 0))
+    monkeypatch.chdir(tmp_path / "a")
+    assert write_oracle_asset(build_asset(results), tmp_path / "b.json").read_bytes() == first
+    assert cli.main(["ship-oracle", "--from-results", str(results),
+                     "--out", str(tmp_path / "c.json")]) == 0
+    assert (tmp_path / "c.json").read_bytes() == first
+    assert first.decode() == asset_text(json.loads(first))
+    oracle = load_shipped_oracle(tmp_path / "c.json")
+    assert [t.name for t in oracle.tables] == ["samples-8", "spec"]
+    eight, spec = oracle.tables
+    assert (eight.samples, spec.samples) == ("8", "200")
+    assert eight.tasks[TASK].rate == 0.5 and spec.tasks[TASK].rate == pytest.approx(2 / 3)
+    assert spec.render == {"tabletop": render_fingerprint("tabletop")}
+    assert spec.describe() == (
+        "shipped oracle table 'spec' (200 planner samples, measured 2026-11-22): simulator "
+        f"oracle on 1 task(s), 2 instance(s) per task, seed(s) 0, 1, 2, suite {SUITE_FORMAT}")
+
+
+def test_the_committed_asset_is_what_results_give():
+    results = REPO / "results" / "oracle"
+    if not results.is_dir() or not any(results.iterdir()):
+        pytest.skip("results/oracle holds no table yet (the oracle is being re-measured)")
+    asset = REPO / "src" / "vp2" / "assets" / "oracle.json"
+    assert asset.is_file(), "results/oracle has tables but vp2/assets/oracle.json is missing"
+    assert asset_text(build_asset(results)) == asset.read_text(), (
+        "vp2/assets/oracle.json is not what results/oracle gives: run `vp2 ship-oracle`")
+
+
+def test_inconsistent_results_are_refused(tmp_path):
+    results = _results(tmp_path)
+    (results / "spec").rename(results / "renamed")
+    with pytest.raises(ValueError, match="meta.json names the table 'spec', its folder 'renamed'"):
+        build_asset(results)
+    (results / "renamed").rename(results / "spec")
+    meta, trials = read_table(results / "spec")
+    write_table(meta, [*trials, {**trials[0], "seed": 9, "num_samples": 50}], results)
+    with pytest.raises(ValueError, match="at several planner samples"):
+        build_asset(results)
+    with pytest.raises(ValueError, match="no oracle tables"):
+        build_asset(tmp_path / "empty")
+
+
+def test_a_one_table_asset_straight_from_runs(tmp_path):
+    data = build_oracle_asset([write_oracle_run(tmp_path / "run")], name="t")
+    assert data["format"] == ASSET_FORMAT and [t["name"] for t in data["tables"]] == ["t"]
+    oracle = load_shipped_oracle(write_oracle_asset(data, tmp_path / "sub" / "oracle.json"))
+    assert not list((tmp_path / "sub").glob(".*.tmp"))
+    assert oracle.table("t").tasks[TASK].trials == 6
+    with pytest.raises(KeyError, match="no shipped oracle table 'x' \\(tables: t at 200\\)"):
+        oracle.table("x")
+
+
+# --------------------------------------------------------------------------- the command
 
 
 def test_ship_oracle_command(tmp_path, capsys):
+    results, out = tmp_path / "results", tmp_path / "oracle.json"
     run = write_oracle_run(tmp_path / "run")
-    out = tmp_path / "oracle.json"
-    assert cli.main(["ship-oracle", str(run), "--out", str(out), "--note", "by hand"]) == 0
+    assert cli.main(["ship-oracle", str(run), "--results", str(results), "--out", str(out),
+                     "--note", "by hand"]) == 0
     printed = capsys.readouterr().out
-    assert "66.7%  (4/6 trials" in printed and "shipped oracle:" in printed and str(out) in printed
-    assert json.loads(out.read_text())["note"] == "by hand"
+    assert f"wrote {results / 'spec'} (6 trials)" in printed and f"wrote {out}" in printed
+    assert "66.7%  (4/6 trials, 2 instances, 200 samples)" in printed
+    assert "shipped oracle table 'spec' (200 planner samples" in printed
+    assert json.loads(out.read_text())["tables"][0]["note"] == "by hand"
+    # A second table joins the first; --check compares the asset with the results.
+    eight = write_oracle_run(tmp_path / "eight", {(0, 0): True}, num_samples=8)
+    assert cli.main(["ship-oracle", str(eight), "--table", "samples-8", "--results",
+                     str(results), "--out", str(out)]) == 0
+    assert [t["name"] for t in json.loads(out.read_text())["tables"]] == ["samples-8", "spec"]
+    check = ["ship-oracle", "--check", "--results", str(results), "--out", str(out)]
+    assert cli.main(check) == 0
+    out.write_text(out.read_text().replace('"by hand"', '"edited"'))
+    assert cli.main(check) == 1 and "differs from" in capsys.readouterr().out
+    # Refusals write nothing.
     bad = write_oracle_run(tmp_path / "bad", model="repeat_last_frame")
-    assert cli.main(["ship-oracle", str(bad), "--out", str(tmp_path / "x.json")]) == 2
+    assert cli.main(["ship-oracle", str(bad), "--results", str(results),
+                     "--out", str(tmp_path / "x.json")]) == 2
     assert "not a simulator-oracle run" in capsys.readouterr().err
-    assert not (tmp_path / "x.json").exists()
+    assert not (tmp_path / "x.json").exists() and sorted(os.listdir(results)) == [
+        "samples-8", "spec"]
+    assert cli.main(["ship-oracle", str(run), "--from-results", str(results)]) == 2
+    assert "give no RUN_DIR" in capsys.readouterr().err
+    assert cli.main(["ship-oracle", "--table", "x", "--results", str(results)]) == 2
+    assert "describe a table made from RUN_DIRs" in capsys.readouterr().err
 
 
 # --------------------------------------------------------------------------- loading
 
 
-def test_loading_a_missing_or_broken_asset(tmp_path, monkeypatch):
+def test_loading_a_missing_broken_or_old_asset(tmp_path, monkeypatch):
     assert load_shipped_oracle(tmp_path / "absent.json") is None
     monkeypatch.setenv(ENV_VAR, str(tmp_path / "absent.json"))
     assert load_shipped_oracle() is None
     (tmp_path / "broken.json").write_text('{"format": "something else"}')
     with pytest.raises(ValueError, match="not a vp2 oracle file"):
         load_shipped_oracle(tmp_path / "broken.json")
+    (tmp_path / "old.json").write_text('{"format": "vp2-oracle/1", "tasks": {}}')
+    with pytest.raises(ValueError, match="old format vp2-oracle/1 .* rebuild it with `vp2 ship-"):
+        load_shipped_oracle(tmp_path / "old.json")
 
 
 def test_the_packaged_asset_loads_if_there_is_one(monkeypatch):
@@ -233,109 +281,5 @@ def test_the_packaged_asset_loads_if_there_is_one(monkeypatch):
     if not default_asset_path().is_file():
         assert oracle is None
     else:
-        assert oracle is not None and oracle.tasks and oracle.suite_format == SUITE_FORMAT
-
-
-# --------------------------------------------------------------------------- normalising
-
-
-def _model_records(outcomes: dict[tuple[int, int], bool], sha=_sha):
-    return [
-        {"task": TASK, "instance": i, "instance_sha": sha(i), "seed": s, "success": ok,
-         "error": None, "cost": "pixel"}
-        for (i, s), ok in outcomes.items()
-    ]
-
-
-def test_normalisation_by_the_shipped_oracle(asset):
-    oracle = load_shipped_oracle()
-    records = _model_records({(0, 0): True, (1, 0): False})
-    summary = summarize_run(records, shipped=oracle)
-    assert summary.tasks[0].oracle_mean == pytest.approx(2 / 3)
-    assert summary.normalised == pytest.approx(0.5 / (2 / 3))
-    # The same as normalising by the oracle run's records.
-    by_run = summarize(records, [
-        {"task": TASK, "instance": i, "seed": s, "success": ok, "error": None}
-        for (i, s), ok in OUTCOMES.items()])
-    assert summary.normalised == pytest.approx(by_run.normalised)
-    text = format_summary(summary)
-    assert "Oracle-normalised score: 0.750" in text
-    assert f"Normalised by the {oracle.describe()}" in text
-    # An oracle run is not normalised.
-    assert summarize_run(records, is_oracle=True, shipped=oracle).normalised is None
-
-
-def test_the_shipped_oracle_is_not_used_on_other_instances_or_suites(asset):
-    oracle = load_shipped_oracle()
-    # Another suite version of the instance: the task is omitted, and the summary says why.
-    summary = summarize_run(_model_records({(0, 0): True}, sha=lambda i: "0" * 16),
-                            shipped=oracle)
-    assert summary.normalised is None and summary.tasks[0].oracle_mean is None
-    assert any("ran on other instances" in w and TASK in w for w in summary.warnings)
-    # A task the oracle lacks: omitted too.
-    other = [{"task": "tabletop/push_large_cube", "instance": 0, "seed": 0, "success": True,
-              "error": None}]
-    summary = summarize_run(_model_records({(0, 0): True}) + other, shipped=oracle)
-    assert summary.normalised == pytest.approx(1.5)  # push_sphere only: 1.0 / (2/3)
-    assert any("no oracle results for ['tabletop/push_large_cube']" in w
-               for w in summary.warnings)
-    # Another suite format: not normalised at all.
-    stale = dataclasses.replace(oracle, suite_format="vp2-task-suite/0")
-    summary = summarize_run(_model_records({(0, 0): True}), shipped=stale)
-    assert summary.normalised is None
-    assert any("measured on task suite 'vp2-task-suite/0'" in w for w in summary.warnings)
-
-
-def _run_args(out: Path, *extra: str) -> list[str]:
-    return ["run", "--model", "repeat_last_frame", "--suite", str(tiny_suite_path()),
-            "--tasks", TASK, "--num-instances", "1", "--seeds", "0", "--num-steps", "3",
-            "--num-samples", "8", "--no-gifs", "--no-progress", "--out", str(out), *extra]
-
-
-def test_vp2_run_is_normalised_by_the_shipped_oracle_by_default(asset, tmp_path, capsys,
-                                                                monkeypatch):
-    out = tmp_path / "run"
-    assert cli.main(_run_args(out)) == 0
-    printed = capsys.readouterr().out
-    # repeat_last_frame succeeds on instance 0 by construction: 1.0 / (2/3).
-    assert "Oracle-normalised score: 1.500" in printed
-    assert "Normalised by the shipped oracle: simulator oracle" in printed
-    assert "Normalised by the shipped oracle" in (out / "summary.md").read_text()
-    assert json.loads((out / "summary.json").read_text())["normalised"] == pytest.approx(1.5)
-    html = (out / "report.html").read_text()
-    assert '<span class="score">1.500</span>' in html and "measured 2026-11-22" in html
-    # --oracle RUN_DIR overrides the shipped oracle (a resumed run only re-summarises).
-    oracle_run = write_oracle_run(tmp_path / "other-oracle", {(0, 0): True, (0, 1): False})
-    assert cli.main(_run_args(out, "--resume", "--oracle", str(oracle_run))) == 0
-    printed = capsys.readouterr().out
-    assert "Oracle-normalised score: 2.000" in printed and "Normalised by the oracle run" in printed
-    # No shipped oracle: no crash, one note, no normalised score.
-    monkeypatch.setenv(ENV_VAR, str(tmp_path / "absent.json"))
-    assert cli.main(_run_args(out, "--resume")) == 0
-    printed = capsys.readouterr().out
-    assert printed.count("no shipped oracle") == 1 and "Oracle-normalised" not in printed
-    html = write_report([out], tmp_path / "report.html").read_text()
-    assert html.count("no shipped oracle") == 1
-
-
-def test_an_oracle_run_is_not_normalised(asset, tmp_path):
-    html = write_report([tmp_path / "oracle-run"], tmp_path / "r.html").read_text()
-    assert "the oracle (1.000 by definition)" in html and "no shipped oracle" not in html
-
-
-def test_main_job_shows_the_shipped_oracle_column(asset, tmp_path):
-    config = MainJobConfig(out=str(tmp_path / "main"), suite=str(tiny_suite_path()),
-                           num_steps=3, workers=1, agents=("random",))
-    table, path = run_main_job(config, gallery=False)
-    lines = table.splitlines()
-    assert lines[0] == "| task | random actions | oracle (shipped) |"
-    assert lines[2].startswith(f"| {TASK} |") and lines[2].endswith("| 67% (6) |")
-    assert any(line.startswith("| **oracle-normalised score** | **") for line in lines)
-    assert "normalised by the shipped oracle: simulator oracle" in path.read_text()
-
-
-def test_main_job_without_a_shipped_oracle(no_asset, tmp_path):
-    config = MainJobConfig(out=str(tmp_path / "main"), suite=str(tiny_suite_path()),
-                           num_steps=3, workers=1, agents=("random",))
-    table, _ = run_main_job(config, gallery=False)
-    assert "oracle (shipped)" not in table and table.count(NO_SHIPPED_ORACLE) == 1
+        assert oracle is not None and oracle.tables
+        assert all(t.suite_format == SUITE_FORMAT and t.tasks for t in oracle.tables)

@@ -13,7 +13,9 @@ worker.py           what runs a trial in a worker process (or Ray actor) and its
 gifs.py             the GIFs of a trial
 results.py          reading records, success rates over seeds, oracle normalisation
 shipped_oracle.py   the simulator oracle's rates shipped with vp2, the default normaliser
-ship_oracle.py      ``vp2 ship-oracle``: builds that file from oracle runs
+oracle_tables.py    a shipped oracle table; which table normalises each task of a run
+ship_oracle.py      ``vp2 ship-oracle``: oracle runs -> results/oracle -> that file
+oracle_replay.py    replaying an oracle trial record against the simulator
 main_job.py         ``vp2 main``: the README's small evaluation
 ==================  ==========================================================================
 

@@ -13,6 +13,7 @@ planner's optimizers, which does.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -101,7 +102,14 @@ class RunConfig:
             allowed (``--num-gpus-per-worker``).
         device: Torch device of models and planning (``--device``); ``None``: CUDA if
             available, else CPU.
-        max_retries: Extra attempts of a crashed trial (``--max-retries``).
+        max_retries: Extra attempts of a crashed trial (``--max-retries``); a trial past
+            ``trial_timeout`` is not retried at once.
+        trial_timeout: Wall-clock seconds of a trial attempt (``--trial-timeout``); ``None``:
+            no limit. A trial past it stops and is recorded as an error (``TrialTimeout``,
+            naming the limit) and the run goes on; ``--resume --retry-errors`` runs it again.
+            Building the model and the simulator is not counted, the trial's first render is
+            (a fresh worker creates its GL context then). Not a protocol field: a resumed
+            run may change it.
         resume: Continue an existing run directory, running only missing trials
             (``--resume``).
         retry_errors: With ``resume``, also re-run trials recorded as errors
@@ -110,7 +118,7 @@ class RunConfig:
         save_predictions: Also a GIF of the chosen plan's predicted frames per planning step
             (``--save-predictions``; one extra model call per step).
         oracle: Run directory (or ``trials.jsonl``) of a simulator-oracle run, to normalise
-            the scores (``--oracle``); ``None``: the shipped oracle
+            the scores (``--oracle``); ``None``: the shipped oracle's table of the run's planner samples
             (:mod:`vp2.benchmark.shipped_oracle`), if there is one.
         progress: Show a progress bar with ETA (``--no-progress`` off).
     """
@@ -134,6 +142,7 @@ class RunConfig:
     num_gpus_per_worker: float = 0.0
     device: str | None = None
     max_retries: int = 1
+    trial_timeout: float | None = None
     resume: bool = False
     retry_errors: bool = False
     save_gifs: bool = True
@@ -164,6 +173,15 @@ class RunConfig:
             raise ValueError(f"num_instances must be >= 1, got {self.num_instances}")
         if self.workers < 1 or self.max_retries < 0:
             raise ValueError("workers must be >= 1 and max_retries >= 0")
+        timeout = self.trial_timeout
+        if timeout is not None and not (
+            isinstance(timeout, (int, float)) and not isinstance(timeout, bool)
+            and 0 < timeout < math.inf
+        ):
+            raise ValueError(
+                f"trial_timeout must be a positive number of seconds (or None: no limit), "
+                f"got {timeout!r}"
+            )
         if self.executor not in EXECUTORS:
             raise ValueError(f"executor must be one of {EXECUTORS}, got {self.executor!r}")
         if self.address is not None and self.executor != "ray":

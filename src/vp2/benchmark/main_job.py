@@ -9,8 +9,9 @@ first instance(s) of every task category of the shipped suite:
 
 and writes one run directory per agent under ``out`` (trials, GIFs, summaries, resumable),
 ``tasks.png`` (a contact sheet of the tasks' start images) and ``main.md``: one table with a
-column per agent and one for the shipped oracle's rates (:mod:`vp2.benchmark.shipped_oracle`),
-which normalises each agent's score. Default sizes keep it within 15 minutes on a 2-core CPU; the deviations
+column per agent and one per shipped oracle table that normalises an agent's score (the table
+of the agent's planner samples, :mod:`vp2.benchmark.shipped_oracle`), with a line naming the
+table (or why there is none) per agent. Default sizes keep it within 15 minutes on a 2-core CPU; the deviations
 from the SPEC protocol (one seed, the model's planner samples) are printed with the table.
 
 The main job composes benchmark runs, so it lives with them; the HTML report of each run (a
@@ -30,7 +31,13 @@ from vp2 import spec
 from vp2.benchmark.config import RunConfig
 from vp2.benchmark.results import Summary
 from vp2.benchmark.runner import RunResult, run_benchmark
-from vp2.benchmark.shipped_oracle import NO_SHIPPED_ORACLE, ShippedOracle, load_shipped_oracle
+from vp2.benchmark.shipped_oracle import (
+    NO_SHIPPED_ORACLE,
+    OracleMatch,
+    OracleTable,
+    ShippedOracle,
+    load_shipped_oracle,
+)
 from vp2.planning.planner import PlannerConfig
 from vp2.utils.io import atomic_path
 
@@ -116,35 +123,65 @@ def _cell(summary: Summary, task: str) -> str:
     return "-"
 
 
+def _oracle_columns(
+    results: dict[str, RunResult], shipped: ShippedOracle | None
+) -> tuple[dict[str, OracleMatch], dict[str, OracleTable]]:
+    """Each agent's match against the shipped tables, and the tables they use (columns)."""
+    if shipped is None:
+        return {}, {}
+    matches = {n: shipped.match(r.records, r.config.planner) for n, r in results.items()}
+    used: dict[str, OracleTable] = {}
+    for m in matches.values():
+        for table in m.tables.values():
+            used.setdefault(table.name, table)
+    return matches, used
+
+
+def _oracle_notes(matches: dict[str, OracleMatch]) -> list[str]:
+    """Which table normalised each agent (agents with the same line share it), and why
+    tasks were left out."""
+    lines: dict[str, list[str]] = {}
+    for name, m in matches.items():
+        if m.tasks:
+            lines.setdefault(f"normalised by the {m.source()}", []).append(name)
+            for note in m.notes:
+                lines.setdefault(note, []).append(name)
+        else:
+            lines.setdefault(f"not oracle-normalised: {'; '.join(m.notes)}", []).append(name)
+    return [f"- {', '.join(names)}: {line}" for line, names in lines.items()]
+
+
 def comparison_table(results: dict[str, RunResult], shipped: ShippedOracle | None = None) -> str:
     """Markdown: one row per task category, one column per agent (success, trials), and with
-    a shipped oracle a column of its rates and a row of each agent's normalised score."""
+    a shipped oracle a column per table that normalises some agent (the table of the agent's
+    planner samples, :meth:`ShippedOracle.match`) and a row of each agent's normalised score."""
     names = list(results)
     tasks: list[str] = []
     for r in results.values():
         tasks += [row.task for row in r.summary.tasks if row.task not in tasks]
-    oracle, oracle_notes = ({}, []) if shipped is None else shipped.for_records(
-        [rec for r in results.values() for rec in r.records])
-    extra = [] if shipped is None else ["oracle (shipped)"]
-    cols = names + extra
+    matches, tables = _oracle_columns(results, shipped)
+    cols = names + [f"oracle {t.name} ({t.samples} samples)" for t in tables.values()]
     lines = ["| task | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    shown: dict[str, list[float]] = {name: [] for name in tables}
     for task in tasks:
         cells = [_cell(results[n].summary, task) for n in names]
-        if shipped is not None:
-            o = oracle.get(task)
-            cells.append("-" if o is None else f"{100 * o.mean:.0f}% ({o.num_trials})")
+        for name, table in tables.items():
+            if any(m.tables.get(task) is table for m in matches.values()):
+                o = table.tasks[task]
+                shown[name].append(o.rate)
+                cells.append(f"{100 * o.rate:.0f}% ({o.trials})")
+            else:
+                cells.append("-")
         lines.append(f"| {task} | " + " | ".join(cells) + " |")
     cells = [f"**{100 * results[n].summary.mean:.0f}%**" for n in names]
-    if shipped is not None:
-        rates = [oracle[t].mean for t in tasks if t in oracle]
-        cells.append(f"**{100 * sum(rates) / len(rates):.0f}%**" if rates else "-")
+    cells += [f"**{100 * sum(v) / len(v):.0f}%**" if v else "-" for v in shown.values()]
     lines.append("| **mean over the agent's tasks** | " + " | ".join(cells) + " |")
     if shipped is not None:
         scores = [results[n].summary.normalised for n in names]
         lines.append("| **oracle-normalised score** | "
-                     + " | ".join("-" if x is None else f"**{x:.2f}**" for x in scores) + " | |")
-    notes = [f"- normalised by the {shipped.describe()}" if shipped is not None
-             else f"- {NO_SHIPPED_ORACLE}"] + [f"- {w}" for w in oracle_notes]
+                     + " | ".join("-" if x is None else f"**{x:.2f}**" for x in scores)
+                     + " |" + " |" * len(tables))
+    notes = _oracle_notes(matches) if shipped is not None else [f"- {NO_SHIPPED_ORACLE}"]
     for name, r in results.items():
         dev = r.config.deviations()
         if dev:

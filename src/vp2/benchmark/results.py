@@ -11,7 +11,8 @@ success nor as a failure; they are reported separately. The overall score is the
 task categories; normalised by the simulator oracle's overall score on the same tasks
 (ratio of the means, so a task on which the oracle rarely succeeds does not blow up the
 score). The oracle's per-task rates come from an oracle run's records or from the shipped
-oracle (:mod:`vp2.benchmark.shipped_oracle`), both as :class:`TaskSummary` rows.
+oracle's table of the run's planner budget (:mod:`vp2.benchmark.shipped_oracle`), both as
+:class:`TaskSummary` rows.
 """
 
 from __future__ import annotations
@@ -182,6 +183,8 @@ class Summary:
         warnings: Things a reader of the numbers must know (mixed cost kinds, unequal seeds,
             errors, tasks missing from the oracle results).
         oracle_source: What the scores were normalised by (one line), ``None`` if by nothing.
+        oracle_note: Why there is no normalised score although a shipped oracle was looked
+            up (no table at the run's planner budget, another render, ...), one line.
     """
 
     tasks: list[TaskSummary]
@@ -196,6 +199,7 @@ class Summary:
     normalised_max: float | None = None
     warnings: list[str] = dataclasses.field(default_factory=list)
     oracle_source: str | None = None
+    oracle_note: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -260,6 +264,7 @@ def summarize(
     *,
     oracle: Mapping[str, TaskSummary] | None = None,
     oracle_source: str | None = None,
+    explained: Sequence[str] = (),
 ) -> Summary:
     """The scores of a run, optionally normalised by the oracle's.
 
@@ -267,8 +272,10 @@ def summarize(
         records: Trial records of the run.
         oracle_records: Trial records of a simulator-oracle run on (at least) the same tasks.
         oracle: Or the oracle's per-task rows directly (e.g. the shipped oracle's,
-            :meth:`vp2.benchmark.shipped_oracle.ShippedOracle.for_records`).
+            :meth:`vp2.benchmark.shipped_oracle.ShippedOracle.match`).
         oracle_source: What the oracle is, one line (shown with the normalised score).
+        explained: Tasks the caller left out of ``oracle`` and explains in its own notes: the
+            note on tasks without oracle results does not name them again.
 
     Returns:
         The :class:`Summary`.
@@ -309,16 +316,21 @@ def summarize(
         oracle = task_success(oracle_records)
     if oracle is not None:
         summary.oracle_source = oracle_source
-        _normalise(summary, oracle)
+        _normalise(summary, oracle, explained)
     return summary
 
 
-def _normalise(summary: Summary, oracle: Mapping[str, TaskSummary]) -> None:
+def _normalise(
+    summary: Summary, oracle: Mapping[str, TaskSummary], explained: Sequence[str] = ()
+) -> None:
     missing = [
         t.task for t in summary.tasks if t.task not in oracle or not oracle[t.task].num_trials
     ]
-    if missing:
-        summary.warnings.append(f"no oracle results for {missing}; the normalised score omits them")
+    unexplained = [t for t in missing if t not in explained]
+    if unexplained:
+        summary.warnings.append(
+            f"no oracle results for {unexplained}; the normalised score omits them"
+        )
     rows = [t for t in summary.tasks if t.task not in missing]
     for t in rows:
         t.oracle_mean = oracle[t.task].mean
@@ -374,6 +386,8 @@ def format_summary(summary: Summary, title: str | None = None) -> str:
         ]
         if summary.oracle_source:
             lines.append(f"Normalised by the {summary.oracle_source}")
+    elif summary.oracle_note:
+        lines += ["", f"Not oracle-normalised: {summary.oracle_note}"]
     if summary.warnings:
         lines += ["", "Notes:"] + [f"- {w}" for w in summary.warnings]
     return "\n".join(lines)

@@ -17,8 +17,9 @@
 5. writes and returns the summary table of the trials its settings cover (records of other
    seeds or instances in the directory are named in a warning, not counted:
    :meth:`~vp2.benchmark.run_dir.RunDir.split_trials`; per task: mean success over seeds with
-   min/max, normalised by an oracle run if one is given, else by the shipped oracle,
-   :mod:`vp2.benchmark.shipped_oracle`; an oracle run itself is not normalised), then calls
+   min/max, normalised by an oracle run if one is given, else by the shipped oracle's table
+   of the run's planner samples, :mod:`vp2.benchmark.shipped_oracle`; an oracle run itself is
+   not normalised), then calls
    the ``after_run`` hook with the run directory (``vp2 run`` and ``vp2 main`` pass the HTML
    report writer, :func:`vp2.report.page.write_run_report`).
 
@@ -66,6 +67,7 @@ from vp2.benchmark.worker import (
     Outcome,
     envs_of,
     init_worker,
+    retried_at_once,
     run_in_process,
     run_job,
     worker_died,
@@ -234,7 +236,8 @@ def run_benchmark(
                     for r in held:
                         trial_log.append(r)
                     held = []
-                if record["error"] is not None and job.attempt < max_attempts:
+                error = record["error"]
+                if error is not None and job.attempt < max_attempts and retried_at_once(error):
                     log.warning(
                         "trial %s failed (attempt %d/%d): %s: %s",
                         job.key,
@@ -308,13 +311,15 @@ def _write_summary(
     run: RunDir, config: RunConfig, records: Records, notes: Sequence[str] = ()
 ) -> Summary:
     """Scores the run (normalised as :func:`~vp2.benchmark.shipped_oracle.summarize_run`
-    does it) and writes ``summary.json`` and ``summary.md`` (``notes``: warnings to add)."""
+    does it: by the shipped oracle's table of the run's planner samples) and writes
+    ``summary.json`` and ``summary.md`` (``notes``: warnings to add)."""
     is_oracle = is_oracle_config(config.to_dict())
     summary = summarize_run(
         records,
         is_oracle=is_oracle,
         oracle_run=config.oracle,
         shipped=None if is_oracle or config.oracle else load_shipped_oracle(),
+        planner=config.planner,
     )
     summary.warnings += [f"not the SPEC protocol: {d}" for d in config.deviations()]
     summary.warnings += list(notes)

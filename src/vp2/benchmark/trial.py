@@ -4,13 +4,20 @@ The trial resets the environment to the instance's initial state, executes the z
 (so that two context frames exist), then asks the agent for an action at every remaining
 step. After every step the success criterion is judged from the simulator state; the trial
 succeeds if it holds at any step. Images are only what the agent sees, never the judge.
+
+:func:`time_limit` bounds a trial's wall-clock time (``vp2 run --trial-timeout``): past it,
+:class:`TrialTimeout` is raised where the trial is.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import signal
+import threading
 import time
 import zlib
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -29,6 +36,59 @@ def trial_seed(task: str, index: int, seed: int) -> int:
     """
     ss = np.random.SeedSequence([seed, zlib.crc32(task.encode()), index])
     return int(ss.generate_state(1, np.uint32)[0])
+
+
+class TrialTimeout(BaseException):
+    """A trial ran past its time limit (:func:`time_limit`).
+
+    A ``BaseException``, like ``KeyboardInterrupt``: a model's ``except Exception`` does not
+    swallow it, and it is no failure at the model boundary
+    (:func:`vp2.models.contract.model_failure`).
+    """
+
+
+def can_time_limit() -> bool:
+    """Whether :func:`time_limit` works here: in the main thread of a process with SIGALRM."""
+    return hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
+
+
+@contextlib.contextmanager
+def time_limit(seconds: float | None, flag: str = "--trial-timeout") -> Iterator[None]:
+    """Raises :class:`TrialTimeout` in the body once it has run ``seconds`` of wall-clock time
+    (``None``: no limit).
+
+    A ``SIGALRM`` timer whose handler raises: it interrupts Python code, ``time.sleep`` and
+    waits (on a lock, a future, a pipe) at once, and a call in C (a long tensor operation, a
+    simulator step) when it returns to Python; a C call that never returns is not
+    interrupted. The previous ``SIGALRM`` handler is restored afterwards. The message names
+    the limit (``flag``) and the time the body had run, e.g. ``"trial exceeded
+    --trial-timeout 30 s after 30.2 s"``.
+
+    Raises:
+        RuntimeError: a limit is set and :func:`can_time_limit` is false (not the main thread).
+    """
+    if seconds is None:
+        yield
+        return
+    if not can_time_limit():
+        raise RuntimeError(
+            f"{flag} needs the trial to run in the main thread of its process (it uses SIGALRM)"
+        )
+    start = time.perf_counter()
+
+    def expire(signum: int, frame: Any) -> None:
+        elapsed = time.perf_counter() - start
+        raise TrialTimeout(f"trial exceeded {flag} {seconds:g} s after {elapsed:.1f} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, seconds)
+        yield
+    finally:
+        try:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+        finally:  # also if the alarm went off just now
+            signal.signal(signal.SIGALRM, previous)
 
 
 @dataclasses.dataclass

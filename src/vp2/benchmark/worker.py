@@ -5,6 +5,12 @@ driver process itself. :func:`init_worker` sets up its state once: the run confi
 per environment (the model built once per environment and checked against it) and a small
 cache of simulators; :func:`run_job` then runs one trial and returns its record, however the
 trial ends. Workers never write files: records stream back to the driver.
+
+A trial attempt that runs past ``RunConfig.trial_timeout`` is stopped by a ``SIGALRM`` timer
+(:func:`vp2.benchmark.trial.time_limit`), which needs the main thread: pool workers and Ray
+actors run trials there, and a driver that runs them itself (one worker) must be its
+process's main thread. After a timeout the worker rebuilds the environment's model and its
+simulators, which the interrupted trial may have left midway.
 """
 
 from __future__ import annotations
@@ -13,7 +19,7 @@ import dataclasses
 import datetime
 import logging
 import traceback
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 import torch
@@ -22,11 +28,12 @@ import vp2
 from vp2.benchmark.config import RunConfig
 from vp2.benchmark.model_spec import MODEL_DOCS, model_identity, resolve_model
 from vp2.benchmark.results import TrialKey
-from vp2.benchmark.trial import ControlTrial, TrialResult
+from vp2.benchmark.trial import ControlTrial, TrialResult, TrialTimeout, can_time_limit, time_limit
 from vp2.data.suite import TaskInstance
 from vp2.envs import env_class, split_name
 from vp2.envs.base import Env
 from vp2.envs.cache import EnvCache
+from vp2.envs.render_specs import render_fingerprint
 from vp2.models.contract import gradient_problem, model_failure
 from vp2.planning.agent import Agent, PlanningAgent, RandomActions
 from vp2.planning.planner import GRADIENT_OPTIMIZERS
@@ -107,6 +114,11 @@ class WorkerState:
         """The simulator of ``instance`` (a trial resets it to the instance's state)."""
         return self.envs.get(instance.env_meta, observation_size=None)
 
+    def drop_agent(self, env_name: str) -> None:
+        """Forgets the agent (and model) of ``env_name``: the next trial builds a new one. The
+        model is not closed, as its ``close`` may wait on the work that hung."""
+        self.agents.pop(env_name, None)
+
     def close(self) -> None:
         self.envs.close()
         for agent, _ in self.agents.values():
@@ -160,6 +172,12 @@ def run_in_process(
     """Runs the jobs in this process (one worker); ``jobs`` may be a live queue that the
     driver refills with retries while iterating."""
     global _STATE
+    if config.trial_timeout is not None and not can_time_limit():
+        raise ValueError(
+            "trial_timeout needs the trials to run in a main thread (it uses SIGALRM), but "
+            "run_benchmark runs them in this thread with workers=1: call it from the main "
+            "thread, or run the trials in worker processes (workers >= 2)"
+        )
     _STATE = WorkerState(config, in_pool=False, envs=envs)
     try:
         for job in jobs:
@@ -188,12 +206,20 @@ def error_record(exc: BaseException, where: str) -> dict[str, Any]:
     return error
 
 
+def retried_at_once(error: Mapping[str, Any]) -> bool:
+    """Whether the driver retries a trial that ended with ``error`` (an error record) at once,
+    up to ``max_retries`` times: every error but a timeout (a model that hung is likely to
+    hang again; ``--resume --retry-errors`` runs it again)."""
+    return error.get("type") != TrialTimeout.__name__
+
+
 def _base_record(job: Job, identity: dict[str, Any]) -> dict[str, Any]:
     task, index, seed = job.key
     return {
         "task": task,
         "instance": index,
         "instance_sha": job.instance.fingerprint,
+        "render_fingerprint": render_fingerprint(split_name(task)[0]),
         "seed": seed,
         "model": identity,
         "vp2_version": vp2.__version__,
@@ -256,11 +282,16 @@ def _attempt_trial(job: Job) -> Outcome:
             stop_on_success=cfg.stop_on_success,
             env=env,
         )
-        result = trial.run()
-    except Exception as exc:
+        with time_limit(cfg.trial_timeout):
+            result = trial.run()
+    except (Exception, TrialTimeout) as exc:
         # A simulator that raised may be broken beyond what reset_to repairs: rebuild it (the
-        # cache is emptied; the next trials build the simulators they need again).
+        # cache is emptied; the next trials build the simulators they need again). A timeout
+        # may have stopped the model anywhere: the next trial gets a new one too.
         _STATE.envs.close()
+        if isinstance(exc, TrialTimeout):
+            log.warning("trial %s: %s", job.key, exc)
+            _STATE.drop_agent(env_name)
         record.update(
             success=None, cost=getattr(agent, "cost_kind", None), error=error_record(exc, "trial")
         )

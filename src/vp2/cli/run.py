@@ -55,14 +55,21 @@ FLAGS: dict[str, Flag | None] = {
     "workers": Flag(help="trial processes (Ray: actors)"),
     **executor_flags(),
     "device": Flag(help="torch device (default: CUDA if available)"),
-    "max_retries": Flag(),
+    "max_retries": Flag(help="extra attempts of a trial that ended in an error (not of a "
+                         "timeout)"),
+    "trial_timeout": Flag(
+        metavar="SECONDS",
+        help="wall-clock limit of a trial attempt (default: none); a trial past it is recorded "
+        "as an error naming the limit and the run goes on; not retried at once: "
+        "--resume --retry-errors runs it again",
+    ),
     "resume": Flag(help="continue the run directory"),
     "retry_errors": Flag(help="with --resume: re-run errors"),
     "save_gifs": Flag("--no-gifs", negate=True, help="no per-trial GIFs"),
     "save_predictions": Flag(help="also a GIF of the chosen plans' predictions"),
     "oracle": Flag(
         help="simulator-oracle run directory to normalise scores by (default: the shipped "
-        "oracle, vp2/assets/oracle.json or $VP2_ORACLE_ASSET)"
+        "oracle's table of the run's planner samples, vp2/assets/oracle.json or $VP2_ORACLE_ASSET)"
     ),
     "progress": Flag("--no-progress", negate=True),
 }

@@ -1,18 +1,34 @@
-"""``vp2 ship-oracle``: the shipped oracle (the default normaliser) from simulator-oracle runs."""
+"""``vp2 ship-oracle``: the shipped oracle (the default normaliser), from simulator-oracle runs
+through the trial records under ``results/oracle`` to ``vp2/assets/oracle.json``."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from vp2.benchmark.ship_oracle import build_oracle_asset, write_oracle_asset
-from vp2.benchmark.shipped_oracle import ASSET_FILE, load_shipped_oracle
+from vp2.benchmark.ship_oracle import (
+    RESULTS_DIR,
+    asset_text,
+    build_asset,
+    build_table,
+    write_oracle_asset,
+    write_table,
+)
+from vp2.benchmark.shipped_oracle import (
+    ASSET_FILE,
+    default_asset_path,
+    load_shipped_oracle,
+    parse_asset,
+)
 
 NAME = "ship-oracle"
-HELP = "build the shipped oracle (the default normaliser) from simulator-oracle runs"
+HELP = "build the shipped oracle's tables (the default normaliser) from simulator-oracle runs"
 DESCRIPTION = (
-    "Reads finished simulator-oracle run directories and writes the per-task success rates "
-    "that vp2 run, main and report normalise scores by when no --oracle is given "
+    "With RUN_DIRs (finished simulator-oracle runs at one planner budget): writes the table's "
+    f"evidence to RESULTS/NAME (meta.json, trials.jsonl), then rebuilds vp2/assets/{ASSET_FILE} "
+    "from every table under RESULTS. Without RUN_DIRs (or with --from-results): only rebuilds "
+    "the asset from RESULTS, byte for byte the same from the same files. vp2 run, main and "
+    "report normalise each task by the table of the run's planner samples "
     "(docs/evaluation.md, 'The shipped oracle')."
 )
 
@@ -21,31 +37,84 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Adds the ``vp2 ship-oracle`` arguments to ``p`` (a sub-parser) and returns it."""
     p.add_argument(
         "run_dirs",
-        nargs="+",
+        nargs="*",
         type=Path,
         metavar="RUN_DIR",
-        help="simulator-oracle run directories (vp2 run --model simulator), finished, no errors",
+        help="simulator-oracle run directories (vp2 run --model simulator) of one planner "
+        "budget, finished, no errors",
+    )
+    p.add_argument(
+        "--table",
+        default=None,
+        metavar="NAME",
+        help="the table the runs make (its folder under RESULTS; default: 'spec' at the "
+        "SPEC's 200/800 samples, 'samples-N' at N)",
+    )
+    p.add_argument(
+        "--results",
+        type=Path,
+        default=RESULTS_DIR,
+        metavar="DIR",
+        help=f"the folder of tables (default: {RESULTS_DIR}, run from the repository root)",
+    )
+    p.add_argument(
+        "--from-results",
+        nargs="?",
+        type=Path,
+        const=RESULTS_DIR,
+        default=None,
+        metavar="DIR",
+        help=f"rebuild the asset from DIR's tables alone (default DIR: {RESULTS_DIR}); no "
+        "RUN_DIRs",
     )
     p.add_argument(
         "--out",
         type=Path,
         default=None,
         metavar="PATH",
-        help=f"the file to write (default: the package's vp2/assets/{ASSET_FILE})",
+        help=f"the asset file to write (default: the package's vp2/assets/{ASSET_FILE})",
     )
-    p.add_argument("--note", default="", metavar="TEXT", help="free text stored with it")
+    p.add_argument("--note", default="", metavar="TEXT", help="free text stored with the table")
+    p.add_argument(
+        "--date",
+        default=None,
+        metavar="YYYY-MM-DD",
+        help="when the oracle ran (default: the date its last trial finished)",
+    )
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="write nothing; exit 1 if the asset differs from what RESULTS gives",
+    )
     return p
 
 
 def run_from_args(args: argparse.Namespace) -> int:
     """Runs ``vp2 ship-oracle`` from parsed arguments."""
-    out = write_oracle_asset(build_oracle_asset(args.run_dirs, note=args.note), args.out)
-    oracle = load_shipped_oracle(out)
-    assert oracle is not None
-    for name, t in oracle.tasks.items():
-        print(
-            f"{name:34s} {100 * t.rate:5.1f}%  ({t.successes}/{t.trials} trials, "
-            f"{len(t.instances)} instances, {t.num_samples} samples)"
-        )
-    print(f"{oracle.describe()}\nwrote {out}")
+    if args.from_results is not None and args.run_dirs:
+        raise ValueError("--from-results rebuilds the asset from results alone: give no RUN_DIR")
+    if args.check and args.run_dirs:
+        raise ValueError("--check compares the asset with the results: give no RUN_DIR")
+    results = args.from_results if args.from_results is not None else args.results
+    if args.run_dirs:
+        meta, trials = build_table(args.run_dirs, name=args.table, note=args.note,
+                                   date=args.date)
+        folder = write_table(meta, trials, results)
+        print(f"wrote {folder} ({len(trials)} trials)")
+    elif args.table or args.note or args.date:
+        raise ValueError("--table, --note and --date describe a table made from RUN_DIRs")
+    asset = build_asset(results)
+    out = args.out if args.out is not None else default_asset_path()
+    if args.check:
+        same = out.is_file() and out.read_text() == asset_text(asset)
+        print(f"{out} {'matches' if same else 'differs from'} {results}")
+        return 0 if same else 1
+    out = write_oracle_asset(asset, out)
+    oracle = load_shipped_oracle(out) or parse_asset(asset, out)
+    for table in oracle.tables:
+        print(table.describe())
+        for name, t in table.tasks.items():
+            print(f"  {name:34s} {100 * t.rate:5.1f}%  ({t.successes}/{t.trials} trials, "
+                  f"{len(t.instances)} instances, {t.num_samples} samples)")
+    print(f"wrote {out}")
     return 0

@@ -105,6 +105,14 @@ class RenderSpec:
         return side, side
 
 
+#: Version of the render pipeline (this module's code path from simulator state to pixels):
+#: part of every environment's render fingerprint (:mod:`vp2.envs.render_specs`), which ties a
+#: shipped oracle table to the images it planned on. Bump it when a change of the pipeline moves
+#: pixels without changing a :class:`RenderSpec` or a camera constant (e.g. another texture
+#: colour space, another resize filter).
+RENDER_PATH_VERSION = 1
+
+
 #: The quality knobs both environments' specs share, chosen by measurement for software
 #: rendering (docs/robodesk.md, docs/tabletop.md): no multisampling, no reflection pass, planes
 #: tessellated into 0.5 m squares and the built-in primitives into 16 slices, 8 stacks and one

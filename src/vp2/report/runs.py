@@ -8,6 +8,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from vp2.benchmark.config import planner_of
 from vp2.benchmark.results import Summary, summarize
 from vp2.benchmark.run_dir import RunDir
 from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
@@ -30,6 +31,8 @@ class RunView:
         summary: Scores, normalised when an oracle run is known.
         is_oracle: Whether the run is a simulator-oracle run.
         oracle_source: Where the normalisation came from (``None``: not normalised).
+        oracle_note: Why a shipped oracle exists but normalises none of the run's tasks (no
+            table at its planner samples, another render spec, ...), one line.
         outside: The note on trials in the directory that its config does not cover, which
             are not counted (:meth:`~vp2.benchmark.run_dir.RunDir.split_trials`); ``None``:
             none.
@@ -43,6 +46,7 @@ class RunView:
     summary: Summary
     is_oracle: bool
     oracle_source: str | None = None
+    oracle_note: str | None = None
     outside: str | None = None
 
 
@@ -65,7 +69,9 @@ def load_runs(
     ``labels``: one per run directory (``None`` or empty: the model spec, :func:`model_label`).
 
     An oracle run among ``run_dirs`` normalises every other run; otherwise a run's own
-    ``oracle`` setting is used if that directory exists, else the shipped oracle.
+    ``oracle`` setting is used if that directory exists, else the shipped oracle's table of
+    the run's planner samples (per task, :meth:`~vp2.benchmark.shipped_oracle.ShippedOracle.
+    match`).
 
     Raises:
         FileNotFoundError: a directory that is not a run (no ``trials.jsonl``).
@@ -114,8 +120,10 @@ def load_runs(
             r.oracle_source = r.summary.oracle_source
         else:
             # Without a shipped oracle the section says so once, not every run's notes.
-            r.summary = summarize_run(r.records, shipped=shipped, note_missing=False)
+            r.summary = summarize_run(r.records, shipped=shipped, note_missing=False,
+                                      planner=planner_of(r.config))
             r.oracle_source = r.summary.oracle_source
+            r.oracle_note = r.summary.oracle_note
     for r in runs:
         if r.outside:
             r.summary.warnings.append(r.outside)

@@ -115,18 +115,25 @@ def normalised_section(runs: Sequence[RunView]) -> str:
                 f"<li><b>{escape(r.label)}</b>: not available (no task the oracle has for its "
                 "instances, see the notes)</li>"
             )
+        elif r.oracle_note:
+            items.append(
+                f"<li><b>{escape(r.label)}</b>: not available "
+                f"<span class=sub>({escape(r.oracle_note)})</span></li>"
+            )
         else:
             items.append(f"<li><b>{escape(r.label)}</b>: not available (no oracle)</li>")
     missing = (
         f"<p class=warn>{escape(NO_SHIPPED_ORACLE)}.</p>"
-        if any(not r.is_oracle and r.oracle_source is None for r in runs)
+        if any(not r.is_oracle and r.oracle_source is None and r.oracle_note is None
+               for r in runs)
         else ""
     )
     return (
         "<p>Mean success over tasks divided by the simulator oracle's on the same tasks (a "
         "ratio of means), [min, max] over seeds. The oracle: a simulator-oracle run given to "
         "<code>vp2 report</code>, else the run's <code>--oracle RUN_DIR</code>, else the "
-        "shipped oracle.</p>"
+        "shipped oracle's table of the run's planner samples and render spec (named with the "
+        "score).</p>"
         f"{missing}<ul>{''.join(items)}</ul>"
     )
 
