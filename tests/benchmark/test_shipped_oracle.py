@@ -97,6 +97,18 @@ def test_the_classifier_is_recorded_and_mixed_ones_refused(tmp_path):
         build_table([a, b])
 
 
+def test_the_classifier_weight_is_recorded_and_mixed_weights_refused(tmp_path):
+    first = {"sha256": "aaaa", "dataset": "data/d", "heldout_accuracy": 0.98}
+    # Records from before the weight was recorded join those that name it.
+    old = write_oracle_run(tmp_path / "old", {(0, 0): True}, classifier=first)
+    new = write_oracle_run(tmp_path / "new", {(0, 1): False}, classifier={**first, "weight": 1.0})
+    meta, _ = build_table([old, new])
+    assert meta["classifiers"] == {TASK: {**first, "weight": 1.0}}
+    other = write_oracle_run(tmp_path / "w10", {(0, 2): True}, classifier={**first, "weight": 10.0})
+    with pytest.raises(ValueError, match="2 classifier weights"):
+        build_table([new, other])
+
+
 def _other_suite(tmp_path: Path) -> Path:
     """The tiny suite with instance 0's goal image changed: another suite version."""
     suite = TaskSuite.load(tiny_suite_path())

@@ -139,6 +139,6 @@ def test_trial_records_name_the_classifier_file_they_planned_with(tmp_path):
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     assert agent.describe()["cost"] == "pixel+classifier"
     assert agent.describe()["classifier"] == {
-        "sha256": digest[:16], "dataset": "data/x", "heldout_accuracy": 0.9877}
+        "sha256": digest[:16], "dataset": "data/x", "heldout_accuracy": 0.9877, "weight": 10.0}
     agent.reset("robodesk/push_green", np.zeros((64, 64, 3), np.uint8), seed=0)
     assert agent.describe()["cost"] == "pixel_only" and "classifier" not in agent.describe()

@@ -63,19 +63,30 @@ def _finished_date(records: Iterable[dict[str, Any]]) -> str | None:
 
 
 def _classifier_of(task: str, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
-    """The classifier a task's trials planned with (their records' ``agent.classifier``);
-    ``{}`` where none was recorded. Trials that used different classifiers are refused."""
-    seen = {
-        json.dumps(r["agent"]["classifier"], sort_keys=True)
+    """The classifier a task's trials planned with (their records' ``agent.classifier``) and
+    its weight in the cost; ``{}`` where none was recorded. Trials that used different
+    classifiers or weights are refused. Records written before the weight was recorded
+    (``weight`` absent) count as the same classifier at the weight the others name."""
+    provenances = [
+        dict(r["agent"]["classifier"])
         for r in records
         if isinstance(r.get("agent"), dict) and r["agent"].get("classifier")
-    }
-    if len(seen) > 1:
+    ]
+    weights = {p.pop("weight") for p in provenances if "weight" in p}
+    seen = {json.dumps(p, sort_keys=True) for p in provenances}
+    if len(seen) > 1 or len(weights) > 1:
+        what = sorted(seen) + [f"weight {w:g}" for w in sorted(weights)]
         raise ValueError(
-            f"{task}: the trials planned with {len(seen)} different success classifiers "
-            f"({', '.join(sorted(seen))}); build the oracle from runs with one classifier per task"
+            f"{task}: the trials planned with {len(seen)} different success classifiers and "
+            f"{len(weights)} classifier weights ({', '.join(what)}); build the oracle from runs "
+            "with one classifier and weight per task"
         )
-    return json.loads(seen.pop()) if seen else {}
+    if not seen:
+        return {}
+    out = json.loads(seen.pop())
+    if weights:
+        out["weight"] = weights.pop()
+    return out
 
 
 def compact_record(record: Mapping[str, Any], num_samples: int | None) -> dict[str, Any]:

@@ -194,8 +194,11 @@ class PlanningAgent:
         self.cost, self.cost_kind = build_cost(
             task, goal, self.cost_mode, self.classifiers, self.device
         )
+        # The classifier's provenance and its weight in the cost (one weight per task,
+        # SPEC §6), so that a record (and an oracle table built from records) names both.
         self._classifier = (
             classifier_provenance(self.classifiers.get(task, self.device))
+            | {"weight": float(self.cost.terms[1][0])}
             if self.cost_kind == "pixel+classifier"
             else {}
         )
