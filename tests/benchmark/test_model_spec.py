@@ -1,5 +1,6 @@
-"""Model specs: parsing the four forms of ``--model``, checking them before any trial, and
-loading models from ``package.module:factory`` specs and YAML files with ``_target_``."""
+"""Model specs: parsing the five forms of ``--model``, checking them before any trial, and
+loading models from ``package.module:factory`` specs, YAML files with ``_target_`` and the
+model zoo (``zoo:NAME``)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import pytest
 import torch
 
 from vp2.benchmark.model_spec import (
+    ZOO_PREFIX,
     ModelSpec,
     PluginError,
     check_spec,
@@ -25,6 +27,8 @@ from vp2.models import CheckpointSpec, build_model, model_entry, write_model_che
 from vp2.models.baselines import RepeatLastFrame
 from vp2.models.contract import CheckedPredictor, unwrap
 from vp2.models.simulator import SimulatorModel
+from vp2.models.zoo import CHECKPOINT_FILE, add_to_zoo, get_card
+from vp2.models.zoo import ZOO_PREFIX as ZOO_PREFIX_OF_THE_ZOO
 
 
 def test_module_factory_with_args_and_context():
@@ -212,3 +216,50 @@ def test_yaml_without_target_is_rejected(tmp_path):
         load_plugin(str(path))
     with pytest.raises(PluginError, match="cannot read"):
         load_plugin(str(tmp_path / "missing.yaml"))
+
+
+SHIPPED_ZOO = "zoo:svg_prime-tiny-robodesk"
+
+
+def test_parse_a_zoo_name_to_its_cards_family_and_checkpoint():
+    spec = ModelSpec.parse(SHIPPED_ZOO)
+    card = get_card("svg_prime-tiny-robodesk")
+    assert (spec.kind, spec.text, spec.path) == ("zoo", SHIPPED_ZOO, card.checkpoint_path)
+    assert spec.checkpoint == CheckpointSpec("svg_prime", card.checkpoint_path)
+    assert spec.zoo is not None and spec.zoo.sha256 == card.sha256
+    assert describe_spec(SHIPPED_ZOO) == "zoo" and ZOO_PREFIX == ZOO_PREFIX_OF_THE_ZOO == "zoo:"
+    check_spec(SHIPPED_ZOO)
+    with pytest.raises(PluginError, match="a checkpoint is loaded by resolve_model"):
+        load_plugin(SHIPPED_ZOO)
+
+
+def test_a_zoo_model_resolves_and_its_identity_names_the_entry():
+    model = resolve_model(SHIPPED_ZOO, {}, env="robodesk", action_dim=5, device="cpu")
+    identity = model_identity(SHIPPED_ZOO, {}, model)
+    assert identity["spec"] == SHIPPED_ZOO and identity["name"] == "svg_prime"
+    assert identity["zoo"] == {
+        "name": "svg_prime-tiny-robodesk", "family": "svg_prime", "preset": "m0.25k0.25",
+        "sha256": get_card("svg_prime-tiny-robodesk").sha256}
+    assert "zoo" not in model_identity("repeat_last_frame", {}, RepeatLastFrame(action_dim=5))
+
+
+def test_an_unknown_or_altered_zoo_entry_is_refused(tmp_path, monkeypatch):
+    with pytest.raises(PluginError, match="model 'zoo:nope': no model 'nope' in the zoo at .*"
+                       "known: svg_prime-tiny-robodesk"):
+        check_spec("zoo:nope")
+    model = build_model("fitvid", "mini", action_dim=4, image_size=32, seed=1)
+    write_model_checkpoint(tmp_path / "m.pt", {
+        "model": model_entry(model), "step": 1,
+        "train_config": {"model": "fitvid", "preset": "mini", "dataset": "d", "out_dir": "r"},
+        "dataset": {"config": {"env": "tabletop"}}})
+    add_to_zoo(tmp_path / "m.pt", "mini", None, tmp_path / "zoo")
+    monkeypatch.setenv("VP2_ZOO_DIR", str(tmp_path / "zoo"))
+    check_spec("zoo:mini")
+    with (tmp_path / "zoo" / "mini" / CHECKPOINT_FILE).open("ab") as f:
+        f.write(b"\0")
+    for call in (lambda: check_spec("zoo:mini"),
+                 lambda: resolve_model("zoo:mini", {}, env="tabletop", action_dim=4,
+                                       device="cpu")):
+        with pytest.raises(PluginError, match="zoo model 'mini': the checkpoint .* does not "
+                           "match its card"):
+            call()

@@ -17,6 +17,9 @@ oracle_tables.py    a shipped oracle table; which table normalises each task of 
 ship_oracle.py      ``vp2 ship-oracle``: oracle runs -> results/oracle -> that file
 oracle_replay.py    replaying an oracle trial record against the simulator
 main_job.py         ``vp2 main``: the README's small evaluation
+diagnose.py         ``vp2 diagnose``: DiagnoseConfig, diagnose_model, write_report, and the
+                    run's pre-check (precheck_model); its measures in diagnose_measures.py,
+                    its thresholds and verdicts in diagnose_verdicts.py
 ==================  ==========================================================================
 
 The planning agent lives in :mod:`vp2.planning`, the RoboDesk success classifiers in

@@ -121,6 +121,10 @@ class RunConfig:
             the scores (``--oracle``); ``None``: the shipped oracle's table of the run's planner samples
             (:mod:`vp2.benchmark.shipped_oracle`), if there is one.
         progress: Show a progress bar with ETA (``--no-progress`` off).
+        precheck: Before the first trial of a learned model, measure on a few held-out clips
+            of the environment's default dataset whether its predictions depend on the
+            actions, and warn when they do not (``--no-precheck`` off;
+            :func:`vp2.benchmark.diagnose.precheck_model`). Not a protocol field.
     """
 
     model: str
@@ -149,6 +153,7 @@ class RunConfig:
     save_predictions: bool = False
     oracle: str | None = None
     progress: bool = True
+    precheck: bool = True
 
     def validate(self) -> None:
         """Raises ``ValueError`` naming the first invalid field."""

@@ -5,6 +5,8 @@ A model spec is one of
 * a built-in name: ``simulator`` (alias ``oracle``), ``repeat_last_frame``;
 * ``NAME:CHECKPOINT`` with a registered model name, e.g. ``svg_prime:runs/svg`` (a trained
   vp2 model, :func:`vp2.models.load_model_spec`);
+* ``zoo:NAME``: a model of the zoo, e.g. ``zoo:svg_prime-tiny-robodesk`` (its card's family and
+  checkpoint, the checkpoint checked against the card's sha256; :mod:`vp2.models.zoo`);
 * ``package.module:factory``: any importable callable returning a
   :class:`vp2.models.base.VideoPredictionModel`, called with the run's model arguments;
 * a ``.yaml``/``.yml`` file whose mapping has a ``_target_`` (``package.module:factory`` or
@@ -20,7 +22,8 @@ Modules are imported with the current directory on the import path (appended, so
 package of the same name wins), so ``--model mymodule:make_model`` works from the folder of
 ``mymodule.py``. :meth:`ModelSpec.parse` is the one place a string is read as a spec (the
 functions below take the string or the parsed :class:`ModelSpec`); :func:`check_spec` checks
-one before any trial (a checkpoint is read, safely: ``torch.load(weights_only=True)``);
+one before any trial (a checkpoint is read, safely: ``torch.load(weights_only=True)``; a zoo
+checkpoint's sha256 is compared with its card's);
 :func:`resolve_model` is the one place a spec becomes a model: it returns it wrapped by
 :func:`vp2.models.contract.checked` (checked calls, the interface's defaults).
 :func:`parse_model_args` reads the model arguments of the command line (``--model-arg``).
@@ -49,6 +52,7 @@ if TYPE_CHECKING:
     import torch
 
     from vp2.models.registry import CheckpointSpec
+    from vp2.models.zoo import ZooCard
 
 #: Built-in model names and their factories.
 BUILTIN_MODELS: dict[str, str] = {
@@ -137,22 +141,26 @@ def read_yaml_spec(path: str | Path) -> dict[str, Any]:
 
 #: ``package.module:factory`` (``factory`` may be dotted: a class attribute).
 _FACTORY = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
-SpecKind = Literal["builtin", "checkpoint", "factory", "yaml"]
+SpecKind = Literal["builtin", "checkpoint", "zoo", "factory", "yaml"]
+#: The prefix of a zoo entry (``vp2.models.zoo.ZOO_PREFIX``; kept here so that reading a spec
+#: without a colon imports no torch).
+ZOO_PREFIX = "zoo:"
 
 
 @dataclasses.dataclass(frozen=True)
 class ModelSpec:
-    """A ``--model`` string, parsed once (:meth:`parse`): which of the four forms it is and
+    """A ``--model`` string, parsed once (:meth:`parse`): which of the five forms it is and
     what it names.
 
     Attributes:
         text: The string as given (what result records and messages show).
-        kind: ``builtin``, ``checkpoint`` (``NAME:CHECKPOINT``), ``factory``
-            (``package.module:factory``) or ``yaml``.
+        kind: ``builtin``, ``checkpoint`` (``NAME:CHECKPOINT``), ``zoo`` (``zoo:NAME``),
+            ``factory`` (``package.module:factory``) or ``yaml``.
         target: The factory to call, ``package.module:factory`` (``builtin``, ``factory``).
         path: The model file (``yaml``) or the checkpoint file or run directory
-            (``checkpoint``).
-        checkpoint: The registered model and its checkpoint (``checkpoint``).
+            (``checkpoint``, ``zoo``).
+        checkpoint: The registered model and its checkpoint (``checkpoint``, ``zoo``).
+        zoo: The zoo entry's card (``zoo``).
     """
 
     text: str
@@ -160,6 +168,7 @@ class ModelSpec:
     target: str | None = None
     path: Path | None = None
     checkpoint: CheckpointSpec | None = None
+    zoo: ZooCard | None = dataclasses.field(default=None, compare=False)
 
     def __str__(self) -> str:
         return self.text
@@ -167,16 +176,19 @@ class ModelSpec:
     @classmethod
     def parse(cls, text: str) -> ModelSpec:
         """The spec a string is: a built-in name, else a ``.yaml``/``.yml`` file, else
-        ``NAME:CHECKPOINT`` if the part before the first colon is a registered model (which
-        imports the models, and torch), else ``package.module:factory``. Reads no file.
+        ``zoo:NAME`` (its card is read), else ``NAME:CHECKPOINT`` if the part before the first
+        colon is a registered model (both import the models, and torch), else
+        ``package.module:factory``. Reads no other file.
 
         Raises:
-            PluginError: none of these forms.
+            PluginError: none of these forms, or a zoo name the zoo does not have.
         """
         if text in BUILTIN_MODELS:
             return cls(text, "builtin", target=BUILTIN_MODELS[text])
         if text.endswith((".yaml", ".yml")):
             return cls(text, "yaml", path=Path(text))
+        if text.startswith(ZOO_PREFIX):
+            return cls._zoo(text)
         names = "NAME:CHECKPOINT"
         if ":" in text:
             from vp2.models.registry import CheckpointSpec, model_names
@@ -192,13 +204,41 @@ class ModelSpec:
             names = f"NAME:CHECKPOINT (NAME: {', '.join(model_names())})"
         raise PluginError(
             f"model {text!r}: expected a built-in name ({', '.join(BUILTIN_MODELS)}), "
-            f"{names}, package.module:factory or a .yaml file"
+            f"{names}, zoo:NAME, package.module:factory or a .yaml file"
         )
+
+    @classmethod
+    def _zoo(cls, text: str) -> ModelSpec:
+        """``zoo:NAME``: the card's family and checkpoint (not yet checked against the card)."""
+        from vp2.models.registry import CheckpointSpec
+        from vp2.models.zoo import ZooError, get_card
+
+        try:
+            card = get_card(text.removeprefix(ZOO_PREFIX), verify=False)
+        except ZooError as err:
+            raise PluginError(f"model {text!r}: {err}") from None
+        path = card.checkpoint_path
+        return cls(text, "zoo", path=path, checkpoint=CheckpointSpec(card.family, path), zoo=card)
+
+    def verify(self) -> None:
+        """Checks a zoo entry's checkpoint against its card (nothing for other forms).
+
+        Raises:
+            PluginError: the checkpoint is missing or its sha256 is not the card's.
+        """
+        if self.zoo is None:
+            return
+        from vp2.models.zoo import ZooError
+
+        try:
+            self.zoo.verify()
+        except ZooError as err:
+            raise PluginError(f"model {self.text!r}: {err}") from None
 
     def check(self) -> None:
         """Resolves the spec without building the model (fails fast, before any trial): imports
         the factory, reads the YAML file, or reads the checkpoint (``weights_only``, on the CPU)
-        and checks it holds the named model.
+        and checks it holds the named model (a zoo entry's: after checking it against its card).
 
         Raises:
             PluginError: naming the spec and what is wrong, in one line.
@@ -206,6 +246,7 @@ class ModelSpec:
         if self.kind == "yaml":
             resolve_target(str(read_yaml_spec(self.text)["_target_"]))
         elif self.checkpoint is not None:
+            self.verify()
             try:
                 self.checkpoint.check()
             except (FileNotFoundError, ValueError) as err:
@@ -227,7 +268,7 @@ class ModelSpec:
             data = read_yaml_spec(self.text)
             target = str(data.pop("_target_"))
             args = {**instantiate(data), **args}
-        elif self.kind == "checkpoint":
+        elif self.checkpoint is not None:
             raise PluginError(f"model {self.text!r}: a checkpoint is loaded by resolve_model")
         else:
             target = str(self.target)
@@ -244,7 +285,7 @@ def _parsed(spec: str | ModelSpec) -> ModelSpec:
 
 
 def describe_spec(spec: str | ModelSpec) -> str:
-    """What kind of spec this is: ``builtin``, ``checkpoint``, ``yaml`` or ``factory``.
+    """What kind of spec this is: ``builtin``, ``checkpoint``, ``zoo``, ``yaml`` or ``factory``.
 
     Raises:
         PluginError: none of these forms (see :meth:`ModelSpec.parse`).
@@ -258,7 +299,8 @@ def check_spec(spec: str | ModelSpec) -> None:
 
     Raises:
         PluginError: if the factory cannot be imported, the file read, or the checkpoint is
-            missing or is not a vp2 checkpoint of the named model.
+            missing, is not a vp2 checkpoint of the named model or (``zoo:NAME``) is not the
+            one its card describes.
     """
     _parsed(spec).check()
 
@@ -284,7 +326,7 @@ def load_plugin(
 
     Args:
         spec: Built-in name, ``package.module:factory`` or a YAML file (see the module doc).
-            ``NAME:CHECKPOINT`` specs are loaded by :func:`resolve_model` only.
+            ``NAME:CHECKPOINT`` and ``zoo:NAME`` specs are loaded by :func:`resolve_model` only.
         args: Keyword arguments for the factory (override a YAML file's).
         context: Arguments passed only if the factory declares a parameter of that name and
             ``args`` does not set it.
@@ -321,6 +363,7 @@ def resolve_model(
 
     parsed = _parsed(spec)
     if parsed.checkpoint is not None:
+        parsed.verify()
         # Model arguments of a checkpoint override inference settings of its config
         # (e.g. MCVD's sampling_steps); load_model refuses architecture changes.
         try:
@@ -338,7 +381,8 @@ def resolve_model(
 def model_identity(
     spec: str | ModelSpec, args: Mapping[str, Any] | None, model: Any
 ) -> dict[str, Any]:
-    """JSON-able identity of a built model for result records."""
+    """JSON-able identity of a built model for result records (a zoo model's also names its
+    entry: ``zoo``, with the card's family, preset and checkpoint sha256)."""
     import torch
 
     from vp2.models.contract import unwrap
@@ -357,6 +401,10 @@ def model_identity(
         identity["config"] = dataclasses.asdict(config)
     if isinstance(model, torch.nn.Module):
         identity["num_parameters"] = sum(p.numel() for p in model.parameters())
+    card = _parsed(spec).zoo if str(spec).startswith(ZOO_PREFIX) else None
+    if card is not None:
+        identity["zoo"] = {"name": card.name, "family": card.family, "preset": card.preset,
+                           "sha256": card.sha256}
     return identity
 
 

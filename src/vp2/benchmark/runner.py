@@ -5,7 +5,10 @@
 1. selects the task instances of the suite and the control-run seeds; every trial has the key
    ``(task, instance index, seed)`` and its randomness comes from that key alone;
 2. creates the run directory with the resolved ``config.yaml`` (or, with ``resume=True``,
-   checks that the protocol settings match the existing one);
+   checks that the protocol settings match the existing one); before the first trial of a
+   learned model, :func:`vp2.benchmark.diagnose.precheck_model` measures on a few held-out
+   clips whether its predictions depend on the actions and warns if not
+   (``RunConfig.precheck``);
 3. runs the trials not yet in ``trials.jsonl`` in worker processes, each of which builds the
    model once per environment; results stream back to this (driver) process, which alone
    writes files: a GIF per trial, then one appended JSON line;
@@ -57,6 +60,7 @@ from typing import Any
 from tqdm.auto import tqdm
 
 from vp2.benchmark.config import RunConfig
+from vp2.benchmark.diagnose import precheck_model
 from vp2.benchmark.gifs import write_trial_gifs
 from vp2.benchmark.model_spec import MODEL_DOCS, check_spec
 from vp2.benchmark.results import Summary, format_summary, is_ok, trial_key, trial_keys
@@ -198,6 +202,8 @@ def run_benchmark(
         log.warning("not the SPEC protocol: %s", message)
 
     jobs = [Job(key=k, instance=by_key[k[:2]]) for k in todo]
+    if config.precheck and jobs and not existing:  # before the run's first trial
+        precheck_model(config, envs_of(jobs))
     max_attempts = config.max_retries + 1
     requeue: collections.deque[Job] = collections.deque()
     num_run = successes = finished = 0

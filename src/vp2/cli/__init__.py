@@ -4,7 +4,7 @@ Each command's module parses its arguments, builds a config and calls library fu
 everything a command does, Python can do with the same functions.
 
 One module per command: ``main_job`` (``vp2 main``), ``collect``, ``render``, ``tasks``, ``run``,
-``train``, ``train_classifier``, ``metrics``, ``report``, ``ship_oracle``, ``study``. Each has its
+``train``, ``train_classifier``, ``metrics``, ``report``, ``ship_oracle``, ``study``, ``zoo``, ``diagnose``. Each has its
 ``NAME``, ``HELP`` and ``DESCRIPTION``, ``configure_parser(p)`` and ``run_from_args(args)``.
 
 Run ``vp2 --help`` or ``vp2 <command> --help``.
@@ -19,6 +19,7 @@ from collections.abc import Sequence
 
 from vp2.cli import (
     collect,
+    diagnose,
     main_job,
     metrics,
     render,
@@ -29,11 +30,12 @@ from vp2.cli import (
     tasks,
     train,
     train_classifier,
+    zoo,
 )
 
 #: The sub-commands in the order ``vp2 --help`` lists them.
 COMMANDS = (main_job, collect, render, tasks, run, train, train_classifier, metrics, report,
-            ship_oracle, study)
+            ship_oracle, study, zoo, diagnose)
 
 
 def build_parser() -> argparse.ArgumentParser:

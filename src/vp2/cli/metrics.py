@@ -49,7 +49,7 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument(
         "--model",
         required=True,
-        help="model spec: repeat_last_frame | simulator | NAME:CHECKPOINT | "
+        help="model spec: repeat_last_frame | simulator | NAME:CHECKPOINT | zoo:NAME | "
         "package.module:factory | file.yaml",
     )
     p.add_argument(

@@ -24,7 +24,7 @@ RUN_OPTIMIZERS = ["mppi", "cem", "cem_gd", "lbfgs"]
 #: optimizers and cost modes from the planner would import torch.
 FLAGS: dict[str, Flag | None] = {
     "model": Flag(
-        help="model spec: simulator | repeat_last_frame | NAME:CHECKPOINT | package.module:factory "
+        help="model spec: simulator | repeat_last_frame | NAME:CHECKPOINT | zoo:NAME (vp2 zoo list) | package.module:factory "
         "| file.yaml (with _target_); modules are also looked up in the current directory "
         "(docs/evaluation.md, 'Plugins')"
     ),
@@ -72,6 +72,12 @@ FLAGS: dict[str, Flag | None] = {
         "oracle's table of the run's planner samples, vp2/assets/oracle.json or $VP2_ORACLE_ASSET)"
     ),
     "progress": Flag("--no-progress", negate=True),
+    "precheck": Flag(
+        "--no-precheck",
+        negate=True,
+        help="skip the check, before the first trial of a learned model, that its predictions "
+        "depend on the actions (a few held-out clips of the default dataset; see vp2 diagnose)",
+    ),
 }
 
 

@@ -1,0 +1,203 @@
+"""The verdicts of ``vp2 diagnose`` (:mod:`vp2.benchmark.diagnose`): the planning measures
+summarised over instances, one ``{"status", "text"}`` per measure from fixed thresholds (the
+constants below, listed in ``docs/diagnose.md``), and the printed lines.
+
+============================  =================================================================
+measure                       statuses
+============================  =================================================================
+``action_conditioning``       ``uses``, ``weak``, ``blind``, ``inverted``, ``skipped``
+``scripted_plan``             ``preferred``, ``not_preferred``, ``skipped``
+``repeatability``             ``repeats``, ``partial``, ``noise``, ``undefined``, ``skipped``
+``spread``                    ``steers``, ``flat``, ``skipped``
+``direction``                 ``varies``, ``biased``, ``undefined``, ``skipped``
+============================  =================================================================
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Sequence
+from typing import Any
+
+from vp2 import spec
+from vp2.benchmark.diagnose_measures import cross_task_cosine
+
+#: A conditioning ratio whose 95% interval holds 1: "does not depend on the actions"; an
+#: interval above 1 with a ratio below WEAK_RATIO: "depends, weakly".
+WEAK_RATIO = 1.05
+#: Median Spearman ρ between the two scorings: below REPEAT_NOISE the ranking is noise, from
+#: REPEAT_FIRM on it repeats.
+REPEAT_NOISE = 0.3
+REPEAT_FIRM = 0.7
+#: Median ESS / N of MPPI's weights above this: the scores are too flat to steer MPPI.
+FLAT_ESS_FRACTION = 0.9
+#: The scripted plan "ranks well" within this top fraction of the candidates.
+TOP_FRACTION = 0.10
+#: Mean cross-task cosine of the plan shifts from this on: one direction whatever the goal;
+#: judged only with shifts on at least BIAS_MIN_TASKS tasks.
+BIAS_COSINE = 0.7
+BIAS_MIN_TASKS = 3
+
+
+def _median(values: Sequence[float]) -> float | None:
+    return float(statistics.median(values)) if values else None
+
+
+def summarize_planning(rows: Sequence[dict[str, Any]], num_samples: int) -> dict[str, Any]:
+    """The planning measures over instances: medians, the top fraction, the cross-task
+    cosine (``None`` where no instance defines a value)."""
+    ranks = [r["rank"] for r in rows if r["rank"] is not None]
+    top = max(1, int(TOP_FRACTION * (num_samples + 1)))
+    rhos = [r["repeat_rho"] for r in rows if r["repeat_rho"] is not None]
+    cosine, pairs = cross_task_cosine(rows)
+    return {
+        "scripted_plan": {
+            "instances": len(ranks),
+            "of": num_samples + 1,
+            "median_rank": _median(ranks),
+            "top": top,
+            "top_fraction": sum(r <= top for r in ranks) / len(ranks) if ranks else None,
+        },
+        "repeatability": {
+            "instances": len(rows),
+            "defined": len(rhos),
+            "median_rho": _median(rhos),
+        },
+        "spread": {
+            "gamma": rows[0]["gamma"] if rows else spec.GAMMA,
+            "median_gamma_spread": _median([r["gamma_spread"] for r in rows]),
+            "median_ess": _median([r["ess"] for r in rows]),
+            "num_samples": num_samples,
+        },
+        "direction": {
+            "mean_cross_task_cosine": cosine,
+            "pairs": pairs,
+            "tasks": len({r["task"] for r in rows if r["shift"] is not None}),
+        },
+    }
+
+
+# --------------------------------------------------------------------------- verdicts
+
+
+def conditioning_verdict(result: dict[str, Any]) -> dict[str, str]:
+    """``{"status", "text"}`` of the conditioning measure (thresholds: module constants)."""
+    if "skipped" in result:
+        return {"status": "skipped", "text": f"not measured: {result['skipped']}"}
+    low, high = result["ci"]
+    if low <= 1.0 <= high:
+        return {"status": "blind", "text": "predictions do not depend on the actions: it will "
+                "plan like repeat-last-frame"}
+    if high < 1.0:
+        return {"status": "inverted", "text": "predictions are worse with the true actions than "
+                "with other clips': check the action alignment (actions[k] is executed in frame "
+                "k and produces frame k + 1)"}
+    if result["ratio"] < WEAK_RATIO:
+        return {"status": "weak", "text": "predictions depend on the actions, weakly (shuffling "
+                f"them raises the error by {result['ratio'] - 1:.1%})"}
+    return {"status": "uses", "text": "predictions depend on the actions"}
+
+
+def verdicts(report: dict[str, Any]) -> dict[str, dict[str, str]]:
+    """One ``{"status", "text"}`` per measure of a report (docs/diagnose.md lists them)."""
+    planning = report["planning"]
+    out = {"action_conditioning": conditioning_verdict(report["action_conditioning"])}
+    if not planning["instances"]:
+        skipped = {"status": "skipped", "text": "not measured: no instance probed"}
+        return out | dict.fromkeys(("scripted_plan", "repeatability", "spread", "direction"),
+                                   skipped)
+    scripted = planning["scripted_plan"]
+    if not scripted["instances"]:
+        out["scripted_plan"] = {"status": "skipped",
+                                "text": "not measured: the instances store no scripted plan"}
+    elif scripted["top_fraction"] == 0:
+        out["scripted_plan"] = {"status": "not_preferred", "text": "the cost does not prefer the "
+                                f"scripted plan: it is never in the top {TOP_FRACTION:.0%} of the "
+                                "candidates"}
+    else:
+        hits = round(scripted["top_fraction"] * scripted["instances"])
+        out["scripted_plan"] = {"status": "preferred", "text": "the cost prefers the scripted "
+                                f"plan on {hits} of {scripted['instances']} instances"}
+    rho = planning["repeatability"]["median_rho"]
+    if rho is None:
+        out["repeatability"] = {"status": "undefined",
+                                "text": "undefined: every candidate gets the same score"}
+    elif rho < REPEAT_NOISE:
+        out["repeatability"] = {"status": "noise", "text": "the ranking is noise: MPPI follows "
+                                "the model's sampling noise, not the actions"}
+    elif rho < REPEAT_FIRM:
+        out["repeatability"] = {"status": "partial",
+                                "text": "the ranking repeats only in part across the model's noise"}
+    else:
+        out["repeatability"] = {"status": "repeats",
+                                "text": "the ranking repeats across the model's noise"}
+    spread = planning["spread"]
+    if spread["median_ess"] > FLAT_ESS_FRACTION * spread["num_samples"]:
+        out["spread"] = {"status": "flat", "text": "the scores are too flat to steer MPPI: it "
+                         "executes the mean of its samples, as with repeat-last-frame"}
+    else:
+        out["spread"] = {"status": "steers", "text": "the scores move MPPI's weights"}
+    direction = planning["direction"]
+    cosine = direction["mean_cross_task_cosine"]
+    if cosine is None or direction["tasks"] < BIAS_MIN_TASKS:
+        out["direction"] = {"status": "undefined", "text": "not judged: the weights move the plan "
+                            f"on fewer than {BIAS_MIN_TASKS} tasks"}
+    elif cosine >= BIAS_COSINE:
+        out["direction"] = {"status": "biased",
+                            "text": "a bias toward one direction regardless of the goal"}
+    else:
+        out["direction"] = {"status": "varies", "text": "the planned direction changes with the task"}
+    return out
+
+
+# --------------------------------------------------------------------------- output
+
+
+def _f(x: float | None, fmt: str) -> str:
+    return "-" if x is None else format(x, fmt)
+
+
+def format_report(report: dict[str, Any]) -> list[str]:
+    """The printed lines: a header, one line per measure with its verdict, the predicted score
+    and the wall time."""
+    v = report["verdicts"]
+    c = report["action_conditioning"]
+    p = report["planning"]
+    n = len(p["instances"])
+    lines = [f"{report['model']['name']} ({report['model']['spec']}) on {report['env']}"]
+    if "skipped" in c:
+        lines.append(f"action conditioning: {v['action_conditioning']['text']}")
+    else:
+        lines.append(
+            f"action conditioning: shuffled/true error ratio {c['ratio']:.3f} [95% CI "
+            f"{c['ci'][0]:.3f}-{c['ci'][1]:.3f}], {c['wins']}/{c['clips']} held-out clips better "
+            f"with the true actions -> {v['action_conditioning']['text']}"
+        )
+    s = p["scripted_plan"]
+    if s["instances"]:
+        lines.append(
+            f"scripted plan: median rank {_f(s['median_rank'], 'g')} of {s['of']}, in the top "
+            f"{s['top']} on {round(s['top_fraction'] * s['instances'])} of {s['instances']} "
+            f"instances -> {v['scripted_plan']['text']}"
+        )
+    else:
+        lines.append(f"scripted plan: {v['scripted_plan']['text']}")
+    r = p["repeatability"]
+    lines.append(
+        f"ranking repeatability: Spearman {_f(r['median_rho'], '+.2f')} (median over "
+        f"{r['defined']} of {r['instances']} instances) -> {v['repeatability']['text']}"
+    )
+    sp = p["spread"]
+    lines.append(
+        f"score spread: gamma*spread {_f(sp['median_gamma_spread'], '.3g')}, ESS "
+        f"{_f(sp['median_ess'], '.1f')} of {sp['num_samples']} (medians over {n} instances) -> "
+        f"{v['spread']['text']}"
+    )
+    d = p["direction"]
+    lines.append(
+        f"direction: mean cosine {_f(d['mean_cross_task_cosine'], '+.2f')} between plan shifts "
+        f"of different tasks ({d['tasks']} tasks) -> {v['direction']['text']}"
+    )
+    lines.append(f"predicted control score: {report['predicted_control_score_reason']}")
+    lines.append(f"wall time {report['timing']['total_s']:.1f} s")
+    return lines

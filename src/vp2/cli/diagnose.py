@@ -1,0 +1,85 @@
+"""``vp2 diagnose``: whether a model can plan, in minutes (docs/diagnose.md)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from vp2.benchmark.diagnose import REPORT_FILE, DiagnoseConfig
+from vp2.benchmark.model_spec import parse_model_args
+from vp2.cli._fields import Flag, add_flags, build
+from vp2.cli.metrics import model_slug
+
+NAME = "diagnose"
+HELP = "whether a model can plan, in minutes: action conditioning, its cost's ranking (docs/diagnose.md)"
+DESCRIPTION = (
+    "Measures, without a control run, what decides whether a model can plan: whether its "
+    "predictions depend on the actions (held-out clips), and at the first planning step of a "
+    "few suite instances where the scripted plan ranks under its cost, whether the ranking "
+    "repeats across the model's noise and whether the scores move MPPI's weights. Prints a "
+    "verdict per measure and writes a JSON report (docs/diagnose.md)."
+)
+
+#: One entry per :class:`~vp2.benchmark.diagnose.DiagnoseConfig` field, and ``--out``.
+FLAGS: dict[str, Flag | None] = {
+    "model": Flag(
+        required=True,
+        help="model spec, as vp2 run takes it: simulator | repeat_last_frame | NAME:CHECKPOINT | "
+        "package.module:factory | file.yaml",
+    ),
+    "env": Flag(
+        choices=["robodesk", "tabletop"],
+        help="environment (default: the one the checkpoint was trained on where it says, else "
+        "robodesk)",
+    ),
+    "model_args": Flag(
+        "--model-arg",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="model factory argument, repeatable; VALUE parsed as YAML",
+        convert=parse_model_args,
+    ),
+    "data": Flag(metavar="DIR", help="dataset of the held-out clips (default: the one "
+                 "`vp2 collect ENV` writes)"),
+    "suite": Flag(help="task suite file (default: the shipped suite)"),
+    "clips": Flag(help="held-out clips of the action-conditioning measure (0: skip it; "
+                  "default: %(default)s)"),
+    "sampling_seeds": Flag(help="model noise seeds per clip (default: %(default)s)"),
+    "instances_per_task": Flag(help="first instances of each task probed at their first "
+                               "planning step (0: skip; default: %(default)s)"),
+    "num_samples": Flag(help="planner samples per step (default: %(default)s)"),
+    "seed": Flag(help="control-run seed of the probed trials and seed of the clip choice"),
+    "device": Flag(help="torch device (default: CUDA if available)"),
+    "progress": Flag("--no-progress", negate=True, help="no progress bar"),
+    "out": Flag(
+        metavar="FILE",
+        default=None,
+        cli_only=True,
+        help=f"report JSON (default: runs/diagnose/<model-slug>-<env>/{REPORT_FILE})",
+    ),
+}
+
+
+def default_out(spec: str, env: str) -> Path:
+    """``runs/diagnose/<model-slug>-<env>/diagnose.json``."""
+    return Path("runs") / "diagnose" / f"{model_slug(spec)}-{env}" / REPORT_FILE
+
+
+def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Adds the ``vp2 diagnose`` flags to ``p`` (one per :data:`FLAGS` entry)."""
+    add_flags(p, DiagnoseConfig, FLAGS)
+    return p
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    """Runs ``vp2 diagnose``: prints a line per measure and writes the report."""
+    from vp2.benchmark.diagnose import diagnose_model, format_report, write_report
+
+    config = build(DiagnoseConfig, args, FLAGS)
+    config.validate()
+    report = diagnose_model(config)
+    out = write_report(args.out or default_out(config.model, report["env"]), report)
+    print("\n".join(format_report(report)))
+    print(f"wrote {out}")
+    return 0

@@ -1,0 +1,289 @@
+"""`vp2.benchmark.diagnose`: its statistics, its verdicts on models that use and ignore their
+actions, its report, and the pre-check of `run_benchmark`.
+
+The held-out clips are moving squares (``tests.models.synthetic``: a square moves by
+``action[:2] * 8`` pixels per step at 64 px), so a model that shifts its last frame by the
+actions predicts them and a model that ignores the actions cannot. The planning measures run on
+the tiny tabletop suite of ``tests.benchmark``, its instances given a scripted plan.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from tests.benchmark import tiny_suite_path
+from tests.models.synthetic import write_moving_square_dataset
+from vp2.benchmark import RunConfig, run_benchmark
+from vp2.benchmark.diagnose import (
+    PREDICTED_SCORE_REASON,
+    DiagnoseConfig,
+    checkpoint_env,
+    diagnose_model,
+    format_report,
+    precheck_model,
+    write_report,
+)
+from vp2.benchmark.diagnose_measures import (
+    effective_sample_size,
+    rank_of_last,
+    ratio_statistics,
+    spearman,
+)
+from vp2.data.suite import TaskSuite
+from vp2.planning.config import PlannerConfig
+
+HERE = "tests.benchmark.test_diagnose"
+#: Pixels a square moves per unit of action (the dataset's speed: size / 8).
+SPEED = 8
+
+
+class ShiftModel:
+    """Uses its actions: the last frame moved by the summed x/y actions, as the squares move."""
+
+    num_context, num_future, image_size, max_batch_size = 2, 10, 64, 64
+
+    def __init__(self, action_dim: int) -> None:
+        self.action_dim = action_dim
+
+    def predict(self, context: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        last = context[:, -1].float()  # (B, 3, H, W)
+        moves = (actions[:, 1:, :2].cumsum(1) * SPEED).round().long()  # (B, 10, 2): dx, dy
+        out = [
+            torch.stack([torch.roll(last[b], (int(dy), int(dx)), dims=(1, 2)) for dx, dy in seq])
+            for b, seq in enumerate(moves.tolist())
+        ]
+        return torch.stack(out)  # (B, 10, 3, H, W)
+
+
+class StillModel:
+    """Written from the README's DriftModel, but its drift is a constant: it ignores actions."""
+
+    num_context, num_future, image_size = 2, 10, 64
+
+    def __init__(self, action_dim: int, speed: float = 0.01) -> None:
+        self.action_dim, self.speed = action_dim, speed
+
+    def predict(self, context: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        last = context[:, -1]  # (B, 3, 64, 64) in [0, 1]
+        drift = self.speed * torch.arange(1, 11, dtype=last.dtype)  # (10,): no action in it
+        return (last[:, None] + drift[None, :, None, None, None]).clamp(0, 1)
+
+
+class NoisyModel:
+    """Ignores its actions and adds sampling noise: its scores move with the noise only."""
+
+    num_context, num_future, image_size = 2, 10, 64
+
+    def __init__(self, action_dim: int) -> None:
+        self.action_dim = action_dim
+
+    def predict(self, context, actions, *, generator=None):
+        last = context[:, -1:].float().expand(-1, 10, -1, -1, -1)
+        noise = torch.randn(last.shape, generator=generator) * 0.1
+        return (last + noise).clamp(0, 1)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> Path:
+    # 6 trajectories of 16 frames, every 3rd held out: 10 valid clips of 12 frames.
+    return write_moving_square_dataset(
+        tmp_path_factory.mktemp("diag") / "squares", size=64, action_dim=4
+    )
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory) -> Path:
+    """The tiny tabletop suite, each instance with a scripted plan of 4 actions."""
+    plan = np.tile([0.5, -0.5, 0.0, 0.0], (4, 1))
+    instances = [dataclasses.replace(i, actions=plan) for i in TaskSuite.load(tiny_suite_path())]
+    path = tmp_path_factory.mktemp("diag-suite") / "suite.npz"
+    TaskSuite(instances).save(path)
+    return path
+
+
+def _diagnose(model: str, data: Path, suite: Path, **kwargs) -> dict:
+    settings = dict(env="tabletop", data=str(data), suite=str(suite), num_samples=16,
+                    progress=False)
+    return diagnose_model(DiagnoseConfig(model=model, **{**settings, **kwargs}))
+
+
+def _status(report: dict) -> dict[str, str]:
+    return {k: v["status"] for k, v in report["verdicts"].items()}
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+def test_statistics():
+    assert spearman(np.array([1.0, 2, 3, 4]), np.array([10.0, 20, 30, 40])) == pytest.approx(1.0)
+    assert spearman(np.array([1.0, 2, 3, 4]), np.array([4.0, 3, 2, 1])) == pytest.approx(-1.0)
+    # Ties take their average rank: ranks (1.5, 1.5, 3) against (1, 2, 3).
+    assert spearman(np.array([1.0, 1, 2]), np.array([1.0, 2, 3])) == pytest.approx(0.8660254)
+    assert spearman(np.ones(5), np.arange(5.0)) is None  # a constant side: undefined
+    assert effective_sample_size(np.full(50, 1 / 50)) == pytest.approx(50.0)
+    assert effective_sample_size(np.eye(1, 50)[0]) == pytest.approx(1.0)
+    assert rank_of_last(np.array([3.0, 1.0, 2.0])) == 2
+    assert rank_of_last(np.array([2.0, 2.0, 2.0])) == 3  # ties count against the scripted plan
+    same = ratio_statistics(np.full(10, 0.5), np.full(10, 0.5))
+    assert same["ratio"] == 1.0 and same["ci"] == [1.0, 1.0]
+    assert same["wins"] == 0 and same["ties"] == 10 and same["sign_p"] == 1.0
+    better = ratio_statistics(np.full(10, 0.1), np.full(10, 0.2))
+    assert better["ratio"] == pytest.approx(2.0) and better["wins"] == 10
+    assert better["sign_p"] == pytest.approx(2 / 2**10)
+
+
+# --------------------------------------------------------------------------- verdicts
+
+
+def test_a_model_that_uses_its_actions_and_one_that_ignores_them(data, suite):
+    uses = _diagnose(f"{HERE}:ShiftModel", data, suite)
+    c = uses["action_conditioning"]
+    assert c["clips"] == 10 and c["ci"][0] > 1.5 and c["wins"] == 10
+    rows = uses["planning"]["instances"]
+    assert len(rows) == 2 and all(r["of"] == 17 and r["rank"] is not None for r in rows)
+    assert uses["planning"]["repeatability"]["median_rho"] == pytest.approx(1.0)  # deterministic
+    status = _status(uses)
+    assert status.pop("scripted_plan") in ("preferred", "not_preferred")  # ranks: checked above
+    assert status == {
+        "action_conditioning": "uses",
+        "repeatability": "repeats",
+        "spread": "steers",
+        "direction": "undefined",  # one task in the tiny suite
+    }
+
+    ignores = _diagnose(f"{HERE}:StillModel", data, suite)
+    assert ignores["action_conditioning"]["ratio"] == 1.0
+    assert _status(ignores) == {
+        "action_conditioning": "blind",
+        "scripted_plan": "not_preferred",  # every candidate ties: the scripted plan ranks last
+        "repeatability": "undefined",
+        "spread": "flat",
+        "direction": "undefined",
+    }
+    assert ignores["verdicts"]["action_conditioning"]["text"] == (
+        "predictions do not depend on the actions: it will plan like repeat-last-frame"
+    )
+    assert [r["rank"] for r in ignores["planning"]["instances"]] == [17, 17]
+    assert ignores["planning"]["spread"]["median_ess"] == pytest.approx(16.0)
+
+
+def test_scores_that_move_with_the_noise_are_noise(data, suite):
+    report = _diagnose(f"{HERE}:NoisyModel", data, suite, clips=8, num_samples=48)
+    status = _status(report)
+    # The true and the shuffled actions get the same noise: the ratio is exactly 1.
+    assert status["action_conditioning"] == "blind"
+    assert report["action_conditioning"]["ratio"] == 1.0
+    assert status["repeatability"] == "noise"
+    assert abs(report["planning"]["repeatability"]["median_rho"]) < 0.3
+
+
+def test_repeat_last_frame_report(data, suite, tmp_path):
+    report = _diagnose("repeat_last_frame", data, suite, clips=6, instances_per_task=1)
+    assert _status(report)["action_conditioning"] == "blind"
+    path = write_report(tmp_path / "out" / "diagnose.json", report)
+    saved = json.loads(path.read_text())
+    assert saved["format"] == "vp2-diagnose/1" and saved["env"] == "tabletop"
+    assert saved["env_source"] == "flag" and saved["model"]["name"] == "repeat_last_frame"
+    assert saved["predicted_control_score"] is None
+    assert saved["predicted_control_score_reason"] == PREDICTED_SCORE_REASON
+    assert set(saved["action_conditioning"]) >= {"ratio", "ci", "mse_true", "mse_shuffled",
+                                                 "wins", "clips", "sign_p", "moving"}
+    assert set(saved["planning"]) == {"instances", "scripted_plan", "repeatability", "spread",
+                                      "direction"}
+    assert set(saved["timing"]) == {"model_s", "conditioning_s", "planning_s", "total_s"}
+    assert saved["settings"]["num_samples"] == 16 and saved["settings"]["clips"] == 6
+    lines = format_report(report)
+    assert len(lines) == 8 and lines[1].startswith("action conditioning: shuffled/true error ")
+    assert lines[-2] == f"predicted control score: {PREDICTED_SCORE_REASON}"
+
+
+def test_missing_dataset_names_how_to_make_it(suite, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(FileNotFoundError, match="`vp2 collect tabletop` creates it"):
+        diagnose_model(DiagnoseConfig(model="repeat_last_frame", env="tabletop"))
+    # Without the conditioning measure no dataset is needed.
+    report = _diagnose("repeat_last_frame", None, suite, clips=0, instances_per_task=1)
+    assert report["verdicts"]["action_conditioning"]["status"] == "skipped"
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError, match="clips"):
+        DiagnoseConfig(model="repeat_last_frame", clips=1).validate()
+    with pytest.raises(ValueError, match="env"):
+        DiagnoseConfig(model="repeat_last_frame", env="kitchen").validate()
+
+
+def test_the_environment_comes_from_the_checkpoint():
+    assets = Path(__file__).resolve().parents[2] / "src" / "vp2" / "assets"
+    shipped = sorted(p for p in assets.rglob("*.pt") if "svg_prime" in str(p) and "robodesk" in str(p))
+    if not shipped:
+        pytest.skip("the shipped SVG' checkpoint is not in src/vp2/assets")
+    assert checkpoint_env(f"svg_prime:{shipped[0]}") == "robodesk"
+    assert checkpoint_env("repeat_last_frame") is None
+
+
+# --------------------------------------------------------------------------- vp2 run's pre-check
+
+
+def _run(model: str, out: str, **kwargs):
+    return run_benchmark(RunConfig(
+        model=model, out=out, suite=str(tiny_suite_path()), tasks=("tabletop/push_sphere",),
+        num_instances=1, seeds=(0,), num_steps=2, planner=PlannerConfig(num_samples=4),
+        save_gifs=False, progress=False, **kwargs,
+    ))
+
+
+@pytest.fixture
+def default_data(tmp_path, monkeypatch) -> Path:
+    """A current directory whose data/ holds the default tabletop dataset (moving squares)."""
+    write_moving_square_dataset(tmp_path / "data" / "tabletop-100x-64px", size=64, action_dim=4)
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def _precheck_warnings(caplog) -> list[str]:
+    return [r.getMessage() for r in caplog.records
+            if r.levelno == logging.WARNING and "vp2 diagnose" in r.getMessage()]
+
+
+def test_run_warns_before_the_first_trial_of_an_action_blind_model(default_data, caplog):
+    caplog.set_level(logging.INFO, logger="vp2")
+    result = _run(f"{HERE}:StillModel", "runs/still")
+    assert result.num_run == 1 and result.num_errors == 0
+    (warning,) = _precheck_warnings(caplog)
+    assert warning.startswith(f"model {HERE}:StillModel: predictions do not measurably depend on "
+                              "the actions (shuffled/true error ratio 1.00, 95% CI 1.00-1.00 on "
+                              "10 held-out clips of data/tabletop-100x-64px)")
+    assert warning.endswith("it will plan like repeat-last-frame; see `vp2 diagnose`")
+
+
+def test_run_does_not_warn_for_a_model_that_uses_its_actions(default_data, caplog):
+    caplog.set_level(logging.INFO, logger="vp2")
+    _run(f"{HERE}:ShiftModel", "runs/shift")
+    assert _precheck_warnings(caplog) == []
+    assert any("pre-check" in r.getMessage() and "depend on the actions" in r.getMessage()
+               for r in caplog.records if r.levelno == logging.INFO)
+
+
+def test_the_precheck_can_be_skipped_and_is_silent_without_a_dataset(
+    default_data, tmp_path, caplog, monkeypatch
+):
+    caplog.set_level(logging.DEBUG, logger="vp2")
+    _run(f"{HERE}:StillModel", "runs/off", precheck=False)
+    assert _precheck_warnings(caplog) == []
+    config = RunConfig(model=f"{HERE}:StillModel", out="x")
+    assert precheck_model(RunConfig(model="repeat_last_frame", out="x"), ["tabletop"]) == []
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    monkeypatch.chdir(empty)
+    caplog.clear()
+    assert precheck_model(config, ["tabletop"]) == []
+    assert [r.levelno for r in caplog.records] == [logging.DEBUG]
+    assert "no dataset at data/tabletop-100x-64px" in caplog.records[0].getMessage()
