@@ -223,8 +223,7 @@ def test_bad_settings_are_refused():
 def test_the_environment_comes_from_the_checkpoint():
     assets = Path(__file__).resolve().parents[2] / "src" / "vp2" / "assets"
     shipped = sorted(p for p in assets.rglob("*.pt") if "svg_prime" in str(p) and "robodesk" in str(p))
-    if not shipped:
-        pytest.skip("the shipped SVG' checkpoint is not in src/vp2/assets")
+    assert shipped, "the shipped SVG' checkpoint is missing from src/vp2/assets"
     assert checkpoint_env(f"svg_prime:{shipped[0]}") == "robodesk"
     assert checkpoint_env("repeat_last_frame") is None
 
