@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from vp2.report.charts import _CHAR_WIDTH, scatter_plot
+from vp2.report.charts import _CHAR_WIDTH, line_chart, scatter_plot
 
 
 def _labels(svg: str) -> list[tuple[float, float, str, str]]:
@@ -24,8 +24,12 @@ def test_long_scatter_title_wraps_within_the_figure():
 
 
 def test_labels_of_close_points_do_not_overlap():
-    points = [("SVG tiny", 1.0, 0.5), ("FitVid small", 1.01, 0.5), ("MCVD", 1.02, 0.51),
-              ("RLF", 3.0, 0.1)]
+    points = [
+        ("SVG tiny", 1.0, 0.5),
+        ("FitVid small", 1.01, 0.5),
+        ("MCVD", 1.02, 0.51),
+        ("RLF", 3.0, 0.1),
+    ]
     labels = _labels(scatter_plot(points, x_label="FVD"))
     assert [t for *_, t in labels] == [p[0] for p in points]
     boxes = []
@@ -34,5 +38,24 @@ def test_labels_of_close_points_do_not_overlap():
         x0, x1 = (x - w, x) if anchor == "end" else (x, x + w)
         boxes.append((x0, x1, y - 11, y + 2))
     for i, a in enumerate(boxes):
-        for b in boxes[i + 1:]:
+        for b in boxes[i + 1 :]:
             assert a[1] <= b[0] or a[0] >= b[1] or a[3] <= b[2] or a[2] >= b[3], (a, b)
+
+
+def test_line_chart_places_points_intervals_and_the_target_by_value():
+    series = {"a": [(30.0, 1.2, 1.1, 1.3), (15.0, 1.0, 0.9, 1.1)], "b": [(15.0, 1.5, 1.4, 1.6)]}
+    svg = line_chart(series, x_label="min", y_label="ratio", reference=(1.1, "target 1.1"))
+    pts = re.findall(
+        r'data-series="(\w)" data-x="([\d.]+)" data-y="([\d.]+)" data-low="([\d.]+)" '
+        r'data-high="([\d.]+)" cx="([\d.]+)" cy="([\d.]+)"',
+        svg,
+    )
+    assert [(s, float(x)) for s, x, *_ in pts] == [("a", 15.0), ("a", 30.0), ("b", 15.0)]
+    cy = {(s, float(x)): float(y) for s, x, _, _, _, _, y in pts}
+    cx = {(s, float(x)): float(v) for s, x, _, _, _, v, _ in pts}
+    # Higher values sit higher (smaller y); later points further right.
+    assert cy[("b", 15.0)] < cy[("a", 30.0)] < cy[("a", 15.0)]
+    assert cx[("a", 30.0)] > cx[("a", 15.0)] == cx[("b", 15.0)]
+    ref = float(re.search(r'class="reference" x1="[\d.]+" y1="([\d.]+)"', svg).group(1))
+    assert cy[("a", 15.0)] > ref > cy[("a", 30.0)]  # 1.0 below the 1.1 line, 1.2 above
+    assert re.findall(r'class="legend"[^>]*>(\w)<', svg) == ["a", "b"]

@@ -192,7 +192,9 @@ def _free_label_y(
         shift = (step + 1) // 2 * (1 if step % 2 else -1) * 12  # 0, +12, -12, +24, ...
         cand = min(max(y + shift, lo), hi)
         box = (x0, x1, cand - 11, cand + 2)
-        if all(box[1] <= b[0] or box[0] >= b[1] or box[3] <= b[2] or box[2] >= b[3] for b in placed):
+        if all(
+            box[1] <= b[0] or box[0] >= b[1] or box[3] <= b[2] or box[2] >= b[3] for b in placed
+        ):
             placed.append(box)
             return cand
     placed.append((x0, x1, y - 11, y + 2))
@@ -293,6 +295,116 @@ def scatter_plot(
             f"<title>{escape(f'{label}: {_fmt(x)}, {_fmt(yv * y_scale)}')}</title></circle>"
             f'<text x="{tx:.1f}" y="{ty:.1f}" text-anchor="{anchor}" font-size="11">'
             f"{escape(label)}</text>"
+        )
+    parts.append("</svg>")
+    return "".join(parts)
+
+
+def line_chart(
+    series: dict[str, Sequence[tuple[float, float, float, float]]],
+    *,
+    x_label: str,
+    y_label: str,
+    reference: tuple[float, str] | None = None,
+    title: str = "",
+    size: tuple[int, int] = (420, 260),
+) -> str:
+    """Lines with interval bars, one per series, as an ``<svg>`` element (e.g. a measurement
+    along training).
+
+    Args:
+        series: Label -> ``(x, y, y_low, y_high)`` points (drawn in increasing ``x``).
+        x_label: Axis title of x.
+        y_label: Axis title of y.
+        reference: ``(y, label)`` of a dashed horizontal line (a target).
+        title: Caption drawn above the plot.
+        size: Width and height of the plotting area in pixels.
+
+    Returns:
+        The SVG markup; points are ``<circle class="pt">`` with ``data-series``, ``data-x``,
+        ``data-y``, ``data-low`` and ``data-high``; the legend lists the series in order.
+    """
+    left, right, bottom = 60, 150, 44
+    pw, ph = size
+    width = left + pw + right
+    title_lines = textwrap.wrap(title, max(10, int((width - 8) / _CHAR_WIDTH))) if title else []
+    top = 28 + _LINE_HEIGHT * max(0, len(title_lines) - 1)
+    height = top + ph + bottom
+    pts = [p for ps in series.values() for p in ps if all(math.isfinite(v) for v in p)]
+    xs = [p[0] for p in pts] or [0.0, 1.0]
+    ys = [v for p in pts for v in p[1:]] + ([reference[0]] if reference else [])
+    ys = ys or [0.0, 1.0]
+    x_ticks = nice_ticks(min(0.0, min(xs)), max(xs), 5)
+    y_ticks = nice_ticks(min(ys), max(ys), 5)
+    x_lo, x_hi = x_ticks[0], x_ticks[-1]
+    y_lo, y_hi = y_ticks[0], y_ticks[-1]
+    if x_hi <= x_lo:
+        x_hi = x_lo + 1.0
+    if y_hi <= y_lo:
+        y_hi = y_lo + 1.0
+
+    def px(v: float) -> float:
+        return left + (v - x_lo) / (x_hi - x_lo) * pw
+
+    def py(v: float) -> float:
+        return top + ph - (v - y_lo) / (y_hi - y_lo) * ph
+
+    parts = [
+        f'<svg xmlns="http://www.w3.org/2000/svg" class="chart lines" width="{width}" '
+        f'height="{height}" viewBox="0 0 {width} {height}" role="img" {_FONT}>'
+        f'<rect width="{width}" height="{height}" fill="white"/>'
+    ]
+    for n, line in enumerate(title_lines):
+        parts.append(
+            f'<text x="4" y="{16 + n * _LINE_HEIGHT}" font-weight="bold">{escape(line)}</text>'
+        )
+    for tick in y_ticks:
+        ty = py(tick)
+        parts.append(
+            f'<line x1="{left}" y1="{ty:.1f}" x2="{left + pw}" y2="{ty:.1f}" stroke="#eee"/>'
+            f'<text x="{left - 6}" y="{ty + 4:.1f}" text-anchor="end">{_fmt(tick)}</text>'
+        )
+    for tick in x_ticks:
+        tx = px(tick)
+        parts.append(
+            f'<line x1="{tx:.1f}" y1="{top}" x2="{tx:.1f}" y2="{top + ph}" stroke="#eee"/>'
+            f'<text x="{tx:.1f}" y="{top + ph + 16}" text-anchor="middle">{_fmt(tick)}</text>'
+        )
+    parts.append(
+        f'<rect x="{left}" y="{top}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>'
+        f'<text x="{left + pw / 2:.0f}" y="{height - 8}" text-anchor="middle">'
+        f"{escape(x_label)}</text>"
+        f'<text transform="translate(14,{top + ph / 2:.0f}) rotate(-90)" text-anchor="middle">'
+        f"{escape(y_label)}</text>"
+    )
+    if reference is not None:
+        ry = py(reference[0])
+        parts.append(
+            f'<line class="reference" x1="{left}" y1="{ry:.1f}" x2="{left + pw}" y2="{ry:.1f}" '
+            f'stroke="#444" stroke-dasharray="5,4"/>'
+            f'<text x="{left + pw - 4}" y="{ry - 4:.1f}" text-anchor="end" font-size="11">'
+            f"{escape(reference[1])}</text>"
+        )
+    for i, (name, points) in enumerate(series.items()):
+        c = colour(i)
+        good = sorted(p for p in points if all(math.isfinite(v) for v in p))
+        if len(good) > 1:
+            path = " ".join(f"{px(x):.1f},{py(y):.1f}" for x, y, _, _ in good)
+            parts.append(f'<polyline points="{path}" fill="none" stroke="{c}" stroke-width="2"/>')
+        for x, y, lo, hi in good:
+            parts.append(
+                f'<line x1="{px(x):.1f}" y1="{py(lo):.1f}" x2="{px(x):.1f}" y2="{py(hi):.1f}" '
+                f'stroke="{c}"/>'
+                f'<circle class="pt" data-series="{escape(name)}" data-x="{x!r}" data-y="{y!r}" '
+                f'data-low="{lo!r}" data-high="{hi!r}" cx="{px(x):.2f}" cy="{py(y):.2f}" r="4" '
+                f'fill="{c}"><title>{escape(f"{name}: {_fmt(x)}, {_fmt(y)} [{_fmt(lo)}, {_fmt(hi)}]")}'
+                "</title></circle>"
+            )
+        ly = top + 12 + 18 * i
+        parts.append(
+            f'<line x1="{left + pw + 12}" y1="{ly - 4}" x2="{left + pw + 32}" y2="{ly - 4}" '
+            f'stroke="{c}" stroke-width="2"/>'
+            f'<text class="legend" x="{left + pw + 38}" y="{ly}">{escape(name)}</text>'
         )
     parts.append("</svg>")
     return "".join(parts)

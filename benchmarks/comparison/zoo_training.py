@@ -1,0 +1,365 @@
+"""Train the five families round-robin at one budget each, tracking action conditioning.
+
+    MUJOCO_GL=egl OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.comparison.zoo_training \\
+        --data data/robodesk-20x-64px --levels 15 30 60 90 120 --out outputs/zoo-training
+
+Every family of :data:`~benchmarks.comparison.model_comparison.FAMILIES` (or ``--families``)
+trains in rounds: round ``L`` brings each family's training wall time (``vp2 train
+--max-minutes``, summed over resumed sessions; validation and checkpoint writing left out) to
+``L`` minutes, family after family, before any family starts round ``L + 1``. A session cut
+short therefore leaves every family within one round of the others, and the same command
+continues where it stopped (an interrupted training resumes from its newest checkpoint).
+MaskViT trains its tokenizer for the first ``--tokenizer-minutes`` of its budget and its
+transformer for the rest (the transformer needs the finished tokenizer).
+
+After each round a family's weights are exported (float16, inference only) to
+``snapshots/<family>-<L>min.pt`` and its **action conditioning** is measured on held-out clips:
+the prediction error under each clip's true actions and under another clip's
+(:func:`vp2.benchmark.diagnose_measures.conditioning_errors`), the ratio shuffled / true with its
+95% bootstrap interval over clips. The target is an interval wholly above ``--target`` (1.1).
+
+Layout of ``--out``::
+
+    zoo_training.json            settings and the command of the latest invocation
+    train/<model>/               `vp2 train` run directories
+    snapshots/<family>-<L>min.pt exported weights at the end of round L
+    curve/<family>-<L>min.json   one point of the curve: minutes, steps, ratio, interval
+    curve.md, curve.svg          the table and the chart of every point so far
+
+Each point records the settings it was made with; a second invocation with other settings for
+the same ``--out`` stops with a message instead of mixing runs. ``--smoke`` is a tiny
+configuration for the test (``tests/scripts/test_zoo_training.py``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+
+import vp2
+from benchmarks import common
+from benchmarks.comparison.model_comparison import FAMILIES, STEP_CAP, device_name, done_record
+from vp2.benchmark.diagnose_measures import conditioning_errors, held_out_clips, ratio_statistics
+from vp2.benchmark.model_spec import resolve_model
+from vp2.data.storage import load_manifest
+from vp2.report.charts import line_chart
+from vp2.training.checkpoint import list_checkpoints
+from vp2.training.config import TrainConfig
+from vp2.training.export import export_checkpoint
+from vp2.training.trainer import train
+from vp2.utils.io import atomic_path, json_safe, write_json_atomic
+from vp2.utils.tensors import resolve_device
+
+#: Context and predicted frames of the held-out clips (the planner's 2 and 10).
+CONTEXT, FUTURE = 2, 10
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """The run's settings (flag names as field names); ``device`` is resolved."""
+
+    out: Path
+    data: Path
+    families: tuple[str, ...]
+    levels: tuple[float, ...]
+    tokenizer_minutes: float
+    batch_size: int
+    lr: float | None
+    device: str
+    threads: int
+    ckpt_interval: int
+    eval_batches: int
+    clips: int
+    samples: int
+    target: float
+    smoke: bool
+    command: str
+
+
+def stage_minutes(family: str, level: float, tokenizer_minutes: float) -> list[float]:
+    """The ``max_minutes`` of each of ``family``'s training stages at round ``level``
+    (0: the stage has not started). MaskViT: the tokenizer's first, then the transformer."""
+    stages = FAMILIES[family]
+    if len(stages) == 1:
+        return [level]
+    first = min(level, tokenizer_minutes)
+    return [first, max(0.0, level - tokenizer_minutes)]
+
+
+def train_config(s: Settings, family: str, index: int, minutes: float, level: float) -> TrainConfig:
+    """The ``vp2 train`` run of stage ``index`` of ``family`` with a budget of ``minutes`` (in
+    round ``level``; ``--smoke`` stops round n at step 2n instead, so that it is exact)."""
+    stage = FAMILIES[family][index]
+    overrides = dict(stage.overrides)
+    if stage.tokenizer:
+        prev = FAMILIES[family][index - 1]
+        overrides["tokenizer_checkpoint"] = str(final_checkpoint(s.out / "train" / prev.model))
+    return TrainConfig(
+        model=stage.model,
+        preset=stage.preset,
+        model_overrides=overrides,
+        dataset=str(s.data),
+        out_dir=str(s.out / "train" / stage.model),
+        steps=2 * (s.levels.index(level) + 1) if s.smoke else STEP_CAP,
+        max_minutes=minutes,
+        batch_size=s.batch_size,
+        lr=s.lr,
+        seed=0,
+        eval_interval=0,
+        eval_batches=s.eval_batches,
+        ckpt_interval=s.ckpt_interval,
+        keep_checkpoints=2,
+        log_interval=100,
+        workers=0,
+        device=s.device,
+        tensorboard=False,
+        progress=sys.stderr.isatty(),
+        resume=True,
+    )
+
+
+def final_checkpoint(run_dir: Path) -> Path:
+    """The newest checkpoint of a finished tokenizer run (the transformer's input)."""
+    found = list_checkpoints(run_dir)
+    if not found:
+        raise FileNotFoundError(f"no checkpoint in {run_dir}: train the tokenizer first")
+    return found[-1]
+
+
+def train_round(s: Settings, family: str, level: float) -> dict[str, Any]:
+    """Brings ``family``'s stages to round ``level``; returns the last stage's state."""
+    info: dict[str, Any] = {}
+    for index, minutes in enumerate(stage_minutes(family, level, s.tokenizer_minutes)):
+        if minutes <= 0:
+            return {}  # the predictor has not started (MaskViT's transformer)
+        result = train(train_config(s, family, index, minutes, level))
+        info = {
+            "model": FAMILIES[family][index].model,
+            "step": result.step,
+            "train_minutes": result.train_minutes,
+            "checkpoint": str(result.checkpoint),
+            "valid": dict(result.valid_metrics),
+        }
+        if index == 0 and len(FAMILIES[family]) > 1:
+            info["tokenizer"] = {k: info[k] for k in ("step", "train_minutes")}
+    return info
+
+
+def _label(level: float) -> str:
+    return f"{level:g}min"
+
+
+def point(s: Settings, family: str, level: float) -> dict[str, Any] | None:
+    """Trains ``family`` to round ``level`` and measures its conditioning (or reads the point
+    if done); ``None`` when the family has no predictor yet at that round."""
+    path = s.out / "curve" / f"{family}-{_label(level)}.json"
+    settings = {
+        "family": family,
+        "level": level,
+        "data": str(s.data),
+        "batch_size": s.batch_size,
+        "lr": s.lr,
+        "tokenizer_minutes": s.tokenizer_minutes,
+        "clips": s.clips,
+        "samples": s.samples,
+    }
+    record = done_record(path, settings)
+    if record is not None:
+        return record
+    started = time.perf_counter()
+    info = train_round(s, family, level)
+    if not info:
+        return None
+    snapshot = s.out / "snapshots" / f"{family}-{_label(level)}.pt"
+    snapshot.parent.mkdir(parents=True, exist_ok=True)
+    export_checkpoint(info["checkpoint"], snapshot)
+    spec = f"{info['model']}:{snapshot}"
+    frames, actions = held_out_clips(s.data, s.clips, seed=0, context=CONTEXT, future=FUTURE)
+    env = load_manifest(s.data).get("config", {}).get("env", "robodesk")
+    device = torch.device(s.device)
+    model = resolve_model(spec, {}, env=env, action_dim=actions.shape[-1], device=device)
+    measured = time.perf_counter()
+    errors = conditioning_errors(model, frames, actions, s.samples, seed=0, device=device)
+    stats = ratio_statistics(errors["true"], errors["shuffled"])
+    moving = ratio_statistics(errors["true_moving"], errors["shuffled_moving"])
+    record = {
+        "settings": settings,
+        "family": family,
+        "level_minutes": level,
+        "model": spec,
+        "step": info["step"],
+        "train_minutes": info["train_minutes"],
+        "tokenizer": info.get("tokenizer"),
+        "valid": info["valid"],
+        "conditioning": stats,
+        "conditioning_moving": moving,
+        "above_target": stats["ci"][0] > s.target,
+        "device": device_name(s.device),
+        "threads": torch.get_num_threads(),
+        "conditioning_seconds": time.perf_counter() - measured,
+        "seconds": time.perf_counter() - started,
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
+    write_json_atomic(path, json_safe(record))
+    return record
+
+
+def read_points(out: Path) -> list[dict[str, Any]]:
+    """Every curve point under ``out``, by family then level."""
+    points = [json.loads(p.read_text()) for p in sorted((out / "curve").glob("*.json"))]
+    return sorted(points, key=lambda r: (r["family"], r["level_minutes"]))
+
+
+def curve_markdown(points: Sequence[dict[str, Any]], target: float, command: str) -> str:
+    """The curve as a Markdown table, one row per point."""
+    lines = [
+        "# Action conditioning along training",
+        "",
+        f"Command: `{command}`",
+        "",
+        "Ratio of held-out prediction error under shuffled vs true actions (95% bootstrap "
+        f"interval over clips); target: interval wholly above {target:g}.",
+        "",
+        "| family | budget (min) | minutes used | steps | ratio [95% CI] | changing pixels | "
+        "wins | valid MSE | above target |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in points:
+        c, m = r["conditioning"], r["conditioning_moving"]
+        mse = r.get("valid", {}).get("valid/pred_mse")
+        lines.append(
+            f"| {r['family']} | {r['level_minutes']:g} | {r['train_minutes']:.1f} | {r['step']} | "
+            f"{c['ratio']:.3f} [{c['ci'][0]:.3f}, {c['ci'][1]:.3f}] | {m['ratio']:.3f} | "
+            f"{c['wins']}/{c['clips']} | {'–' if mse is None else f'{mse:.5f}'} | "
+            f"{'yes' if r['above_target'] else 'no'} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def curve_svg(points: Sequence[dict[str, Any]], target: float) -> str:
+    """The ratio against training minutes, one line per family, the target dashed."""
+    series: dict[str, list[tuple[float, float, float, float]]] = {}
+    for r in points:
+        c = r["conditioning"]
+        series.setdefault(r["family"], []).append(
+            (r["train_minutes"], c["ratio"], c["ci"][0], c["ci"][1])
+        )
+    return line_chart(
+        series,
+        x_label="training wall time (min)",
+        y_label="shuffled / true error",
+        reference=(target, f"target {target:g}"),
+        title="Action conditioning on held-out clips along training",
+    )
+
+
+def publish(s: Settings) -> None:
+    points = read_points(s.out)
+    with atomic_path(s.out / "curve.md") as tmp:
+        Path(tmp).write_text(curve_markdown(points, s.target, s.command))
+    with atomic_path(s.out / "curve.svg") as tmp:
+        Path(tmp).write_text(curve_svg(points, s.target))
+
+
+def run(s: Settings) -> list[dict[str, Any]]:
+    """Every round of every family, in order; returns the points measured or found."""
+    torch.set_num_threads(s.threads)
+    s.out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(s.out / "zoo_training.json", json_safe(dataclasses.asdict(s)))
+    done = []
+    for level in s.levels:
+        for family in s.families:
+            record = point(s, family, level)
+            if record is None:
+                print(f"[{_label(level)}] {family}: tokenizer only so far", flush=True)
+                continue
+            c = record["conditioning"]
+            print(
+                f"[{_label(level)}] {family}: step {record['step']}, ratio {c['ratio']:.3f} "
+                f"[{c['ci'][0]:.3f}, {c['ci'][1]:.3f}]",
+                flush=True,
+            )
+            done.append(record)
+            publish(s)
+    return done
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    p = common.argument_parser(__name__, __doc__ or "")
+    p.add_argument("--data", type=Path, default=Path("data/robodesk-20x-64px"))
+    p.add_argument("--families", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
+    p.add_argument(
+        "--levels",
+        nargs="+",
+        type=float,
+        default=[15, 30, 60, 90, 120],
+        help="cumulative training minutes per family at the end of each round",
+    )
+    p.add_argument(
+        "--tokenizer-minutes",
+        type=float,
+        default=20.0,
+        help="MaskViT: minutes of its budget spent on the tokenizer (default 20)",
+    )
+    p.add_argument("--batch-size", type=int, default=8)
+    p.add_argument("--lr", type=float, default=None, help="default: each model's own")
+    p.add_argument("--device", default=None, help="default: cuda if available")
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--ckpt-interval", type=int, default=500)
+    p.add_argument("--eval-batches", type=int, default=8)
+    p.add_argument("--clips", type=int, default=64, help="held-out clips per measurement")
+    p.add_argument("--samples", type=int, default=2, help="sampling seeds per clip")
+    p.add_argument("--target", type=float, default=1.1)
+    p.add_argument("--out", type=Path, default=Path("outputs/zoo-training"))
+    p.add_argument("--smoke", action="store_true", help="tiny settings for the test")
+    return p.parse_args(argv)
+
+
+def settings_from_args(args: argparse.Namespace, argv: Sequence[str] | None) -> Settings:
+    levels = tuple(sorted(set(args.levels)))
+    if not levels or levels[0] <= 0:
+        raise SystemExit(f"--levels must be positive minutes, got {args.levels}")
+    if not args.data.is_dir():
+        raise SystemExit(
+            f"--data {args.data} is not a dataset directory; make the default one with "
+            "`vp2 collect robodesk`"
+        )
+    return Settings(
+        out=args.out,
+        data=args.data,
+        families=tuple(args.families),
+        levels=levels,
+        tokenizer_minutes=args.tokenizer_minutes,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        device=str(resolve_device(args.device)),
+        threads=args.threads,
+        ckpt_interval=args.ckpt_interval,
+        eval_batches=args.eval_batches,
+        clips=args.clips,
+        samples=args.samples,
+        target=args.target,
+        smoke=args.smoke,
+        command=common.command_line(__spec__.name, argv),
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = parse_args(argv)
+    s = settings_from_args(args, argv)
+    common.print_header(__name__, device_name(s.device))
+    print(f"vp2 {vp2.__version__}: {len(s.families)} families, rounds {list(s.levels)} min")
+    run(s)
+
+
+if __name__ == "__main__":
+    main()

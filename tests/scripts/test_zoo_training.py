@@ -1,0 +1,82 @@
+"""``benchmarks.comparison.zoo_training``: round-robin training with the conditioning curve,
+resumed by the same command (slow: a tiny dataset, two families, two rounds of a few steps)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from benchmarks.comparison.zoo_training import curve_markdown, stage_minutes
+
+from vp2.data.collect import CollectionConfig, collect
+
+REPO = Path(__file__).resolve().parents[2]
+MODULE = "benchmarks.comparison.zoo_training"
+TINY = CollectionConfig(
+    env="robodesk",
+    trajectories_per_stream=3,
+    streams=("robodesk/push_red",),
+    image_size=64,
+    horizon=15,
+    chunk_size=3,
+    valid_every=3,
+)
+
+
+def _run(data: Path, out: Path, *levels: str) -> str:
+    command = [sys.executable, "-m", MODULE, "--smoke", "--data", str(data), "--out", str(out),
+               "--families", "svg_prime", "fitvid", "--levels", *levels, "--clips", "4",
+               "--samples", "1", "--eval-batches", "1"]  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    proc = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
+    return proc.stdout
+
+
+def test_maskvit_spends_its_first_minutes_on_the_tokenizer():
+    assert stage_minutes("svg_prime", 30, 20) == [30]
+    assert stage_minutes("maskvit", 15, 20) == [15, 0.0]  # no transformer yet
+    assert stage_minutes("maskvit", 30, 20) == [20, 10]
+    assert stage_minutes("maskvit", 120, 20) == [20, 100]
+
+
+def test_curve_markdown_marks_the_points_above_the_target():
+    point = {
+        "family": "fitvid", "level_minutes": 15, "train_minutes": 15.02, "step": 812,
+        "conditioning": {"ratio": 1.31, "ci": [1.2, 1.4], "wins": 60, "clips": 64},
+        "conditioning_moving": {"ratio": 1.25}, "valid": {"valid/pred_mse": 0.00421},
+        "above_target": True,
+    }  # fmt: skip
+    rows = [line for line in curve_markdown([point], 1.1, "cmd").splitlines() if "fitvid" in line]
+    assert rows == [
+        "| fitvid | 15 | 15.0 | 812 | 1.310 [1.200, 1.400] | 1.250 | 60/64 | 0.00421 | yes |"
+    ]
+
+
+@pytest.mark.slow
+def test_rounds_train_every_family_in_turn_and_resume(tmp_path):
+    data = collect(TINY, tmp_path / "data", workers=1, progress=False)
+    out = tmp_path / "zoo"
+    first = _run(data, out, "1")
+    assert "[1min] svg_prime: step 2" in first and "[1min] fitvid: step 2" in first
+    point = json.loads((out / "curve" / "svg_prime-1min.json").read_text())
+    assert point["step"] == 2 and point["conditioning"]["clips"] == 4
+    lo, hi = point["conditioning"]["ci"]
+    assert lo <= point["conditioning"]["ratio"] <= hi
+    assert (out / "snapshots" / "svg_prime-1min.pt").is_file()
+
+    # The same command with one more round: round 1 is read back, round 2 resumes at step 2.
+    second = _run(data, out, "1", "2")
+    again = json.loads((out / "curve" / "svg_prime-1min.json").read_text())
+    assert again["date"] == point["date"]
+    later = json.loads((out / "curve" / "fitvid-2min.json").read_text())
+    assert later["step"] == 4
+    assert "[2min] fitvid: step 4" in second
+    svg = (out / "curve.svg").read_text()
+    assert svg.count('class="pt"') == 4 and 'data-series="fitvid"' in svg
+    table = (out / "curve.md").read_text()
+    assert sum(line.startswith(("| svg_prime |", "| fitvid |")) for line in table.splitlines()) == 4
