@@ -26,8 +26,10 @@ thresholds (:mod:`vp2.benchmark.diagnose_verdicts`; ``docs/diagnose.md``):
    and the **direction** the weights move the plan in: the mean cosine between instances of
    different tasks (near 1: the same direction whatever the goal).
 
-The report also has a ``predicted_control_score`` field, ``None`` until a predictor is fitted
-on control runs of many models (:data:`PREDICTED_SCORE_REASON`).
+The report's ``predicted_control_score`` is the success fraction the shipped predictor
+(:mod:`vp2.benchmark.diagnose_score`, fitted on models whose control runs were measured)
+gives these measurements, with ``predicted_control_score_reason`` saying what it rests on;
+``None``, and why, where no predictor is fitted for the environment.
 
 :func:`precheck_model` is the cheap part alone (action conditioning on
 :data:`PRECHECK_CLIPS` clips), which :func:`vp2.benchmark.runner.run_benchmark` runs before the
@@ -52,6 +54,7 @@ from vp2.benchmark.diagnose_measures import (
     probe_instance,
     ratio_statistics,
 )
+from vp2.benchmark.diagnose_score import NO_PREDICTOR, load_predictor, predicted_score
 from vp2.benchmark.diagnose_verdicts import (
     conditioning_verdict,
     format_report,
@@ -84,8 +87,8 @@ __all__ = [
 FORMAT = "vp2-diagnose/1"
 #: The file :func:`write_report` writes inside a directory.
 REPORT_FILE = "diagnose.json"
-#: What ``predicted_control_score`` is while no predictor is fitted.
-PREDICTED_SCORE_REASON = "not yet fitted: needs the zoo's control runs"
+#: Why ``predicted_control_score`` is ``None`` while vp2 ships no predictor.
+PREDICTED_SCORE_REASON = NO_PREDICTOR
 #: Held-out clips of the run's pre-check (:func:`precheck_model`), one sampling seed.
 PRECHECK_CLIPS = 16
 
@@ -297,6 +300,8 @@ def diagnose_model(config: DiagnoseConfig) -> dict[str, Any]:
         "predicted_control_score": None,
         "predicted_control_score_reason": PREDICTED_SCORE_REASON,
     }
+    score, reason = predicted_score(report, load_predictor())
+    report["predicted_control_score"], report["predicted_control_score_reason"] = score, reason
     report["verdicts"] = verdicts(report)
     timing["total_s"] = round(time.perf_counter() - start, 2)
     report["timing"] = timing

@@ -198,6 +198,11 @@ def format_report(report: dict[str, Any]) -> list[str]:
         f"direction: mean cosine {_f(d['mean_cross_task_cosine'], '+.2f')} between plan shifts "
         f"of different tasks ({d['tasks']} tasks) -> {v['direction']['text']}"
     )
-    lines.append(f"predicted control score: {report['predicted_control_score_reason']}")
+    score = report.get("predicted_control_score")
+    reason = report["predicted_control_score_reason"]
+    lines.append(
+        f"predicted control score: {reason}" if score is None
+        else f"predicted control score: {100 * score:.0f}% success ({reason})"
+    )
     lines.append(f"wall time {report['timing']['total_s']:.1f} s")
     return lines

@@ -1,0 +1,213 @@
+"""Does `vp2 diagnose` predict control? The predictor fitted and validated leave-one-model-out.
+
+    MUJOCO_GL=egl OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.studies.diagnose_validation \\
+        --models benchmarks/studies/diagnose_models.json --out outputs/diagnose-validation \\
+        [--write-asset]
+
+``--models`` is a JSON file listing the models with control runs, per environment::
+
+    {"models": [
+      {"label": "shipped_svg_prime", "env": "robodesk",
+       "model": "svg_prime:src/vp2/assets/models/svg_prime_tiny_robodesk.pt",
+       "control": ["outputs/comparison/runs/shipped_svg_prime"],
+       "metrics": "outputs/comparison/metrics/shipped_svg_prime/metrics.json"},
+      ...]}
+
+For each model it runs ``vp2 diagnose`` (default settings; the report is kept under
+``<out>/reports/<label>.json`` and reused), reads the control success (every trial of the run
+directories in ``control`` on the model's environment) and the perceptual metrics (SSIM, LPIPS,
+FVD of ``vp2 metrics``, where given). Then, per environment with at least 3 models:
+
+* the **held-out predictions**: each model's score from the predictor
+  (:mod:`vp2.benchmark.diagnose_score`) fitted on the *other* models;
+* **Spearman** of the held-out predictions with measured success, beside the Spearman of SSIM,
+  −LPIPS and −FVD with success on the same models (signed so that +1 means "the better metric
+  goes with more success");
+* ``validation.md`` / ``validation.json`` under ``--out``; with ``--write-asset`` the predictor
+  fitted on all the models, with these figures, becomes ``src/vp2/assets/diagnose_predictor.json``
+  (what ``vp2 diagnose`` then reports as the predicted control score).
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks import common
+from vp2.benchmark.diagnose_measures import spearman
+from vp2.benchmark.diagnose_score import FEATURES, FORMAT, features, fit, leave_one_out
+from vp2.benchmark.results import read_trials
+from vp2.utils.io import json_safe, write_json_atomic
+
+ASSET = Path(__file__).resolve().parents[2] / "src" / "vp2" / "assets" / "diagnose_predictor.json"
+#: Fewest models an environment needs for a held-out figure.
+MIN_MODELS = 3
+
+
+def control_success(run_dirs: Sequence[str], env: str) -> tuple[float, int]:
+    """Success fraction and trial count over the ``env`` trials of the run directories."""
+    trials = [
+        t for d in run_dirs for t in read_trials(d)
+        if str(t.get("task", "")).startswith(f"{env}/") and not t.get("error")
+    ]  # fmt: skip
+    if not trials:
+        raise ValueError(f"no {env} trials in {list(run_dirs)}: run `vp2 run` first")
+    return sum(bool(t["success"]) for t in trials) / len(trials), len(trials)
+
+
+def perceptual(path: str | None) -> dict[str, float | None]:
+    """SSIM, LPIPS (AlexNet) and FVD from a ``vp2 metrics`` file (``None`` where absent)."""
+    if not path:
+        return {"ssim": None, "lpips": None, "fvd": None}
+    metrics = json.loads(Path(path).read_text()).get("metrics", {})
+    return {
+        "ssim": metrics.get("ssim"),
+        "lpips": metrics.get("lpips_alex"),
+        "fvd": metrics.get("fvd"),
+    }
+
+
+def diagnose_report(entry: Mapping[str, Any], out: Path) -> dict[str, Any]:
+    """The model's diagnose report: read from ``<out>/reports/<label>.json`` or measured."""
+    path = out / "reports" / f"{entry['label']}.json"
+    if path.is_file():
+        return json.loads(path.read_text())
+    from vp2.benchmark.diagnose import DiagnoseConfig, diagnose_model, write_report
+
+    report = diagnose_model(DiagnoseConfig(model=entry["model"], env=entry["env"]))
+    write_report(path, report)
+    return report
+
+
+def _signed_spearman(values: Sequence[float | None], success: Sequence[float], sign: float):
+    pairs = [(sign * v, s) for v, s in zip(values, success, strict=True) if v is not None]
+    if len(pairs) < MIN_MODELS:
+        return None, len(pairs)
+    a, b = np.array(pairs).T
+    return spearman(a, b), len(pairs)
+
+
+def validate(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Per environment: held-out predictions and the Spearman of each predictor with success.
+
+    Args:
+        rows: One per model: ``label``, ``env``, ``features``, ``success``, ``trials``,
+            ``ssim``, ``lpips``, ``fvd``.
+    """
+    result: dict[str, Any] = {}
+    for env in sorted({r["env"] for r in rows}):
+        models = [r for r in rows if r["env"] == env]
+        if len(models) < MIN_MODELS:
+            result[env] = {"models": len(models), "skipped": f"fewer than {MIN_MODELS} models"}
+            continue
+        feats = [m["features"] for m in models]
+        success = [m["success"] for m in models]
+        trials = [m["trials"] for m in models]
+        held_out = leave_one_out(feats, success, trials)
+        rho, _ = _signed_spearman(held_out, success, 1.0)
+        table = {"predicted (held out)": (rho, len(models))}
+        for key, sign in (("ssim", 1.0), ("lpips", -1.0), ("fvd", -1.0)):
+            table[key] = _signed_spearman([m[key] for m in models], success, sign)
+        predictor = fit(feats, success, trials)
+        predictor.update(
+            models_fitted=len(models),
+            validation={"held_out_spearman": rho, "models": len(models)},
+        )
+        result[env] = {
+            "models": len(models),
+            "held_out": {m["label"]: p for m, p in zip(models, held_out, strict=True)},
+            "spearman": {k: {"rho": v[0], "models": v[1]} for k, v in table.items()},
+            "predictor": predictor,
+        }
+    return result
+
+
+def validation_markdown(
+    rows: Sequence[Mapping[str, Any]], result: Mapping[str, Any], command: str
+) -> str:
+    lines = ["# Diagnose against control", "", f"Command: `{command}`", ""]
+    for env, res in result.items():
+        lines += [f"## {env}", ""]
+        if "skipped" in res:
+            lines += [f"Not validated: {res['skipped']} ({res['models']}).", ""]
+            continue
+        lines += [
+            "| model | measured success | trials | predicted (held out) | SSIM | LPIPS | FVD | "
+            + " | ".join(FEATURES)
+            + " |",
+            "|---|---|---|---|---|---|---|" + "---|" * len(FEATURES),
+        ]
+        for r in (r for r in rows if r["env"] == env):
+            cells = [
+                r["label"], f"{100 * r['success']:.0f}%", str(r["trials"]),
+                f"{100 * res['held_out'][r['label']]:.0f}%",
+                *("–" if r[k] is None else f"{r[k]:.4g}" for k in ("ssim", "lpips", "fvd")),
+                *(f"{r['features'][f]:.3g}" for f in FEATURES),
+            ]  # fmt: skip
+            lines.append("| " + " | ".join(cells) + " |")
+        lines += [
+            "",
+            "Spearman with measured success (+1: the better value goes with more success):",
+            "",
+        ]
+        lines += ["| predictor | Spearman | models |", "|---|---|---|"]
+        for name, v in res["spearman"].items():
+            rho = "–" if v["rho"] is None else f"{v['rho']:+.2f}"
+            lines.append(f"| {name} | {rho} | {v['models']} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = common.argument_parser(__spec__.name, __doc__ or "")
+    parser.add_argument(
+        "--models", type=Path, required=True, help="JSON list of models (see above)"
+    )
+    parser.add_argument("--out", type=Path, default=Path("outputs/diagnose-validation"))
+    parser.add_argument(
+        "--write-asset",
+        action="store_true",
+        help=f"write the fitted predictor to {ASSET.relative_to(ASSET.parents[3])}",
+    )
+    parser.add_argument("--asset", type=Path, default=ASSET, help="where --write-asset writes")
+    args = parser.parse_args(argv)
+    entries = json.loads(args.models.read_text())["models"]
+    labels = [e["label"] for e in entries]
+    if len(set(labels)) != len(labels):
+        raise SystemExit(f"{args.models}: labels must be unique, got {labels}")
+    rows = []
+    for entry in entries:
+        report = diagnose_report(entry, args.out)
+        success, trials = control_success(entry["control"], entry["env"])
+        rows.append({
+            "label": entry["label"], "env": entry["env"], "features": features(report),
+            "success": success, "trials": trials, **perceptual(entry.get("metrics")),
+        })  # fmt: skip
+        print(f"{entry['label']}: success {success:.2f} ({trials} trials)", flush=True)
+    result = validate(rows)
+    command = common.command_line(__spec__.name, argv)
+    write_json_atomic(
+        args.out / "validation.json",
+        json_safe({"command": command, "rows": rows, "result": result}),
+    )
+    (args.out / "validation.md").write_text(validation_markdown(rows, result, command))
+    print((args.out / "validation.md").read_text())
+    if args.write_asset:
+        predictors = {env: res["predictor"] for env, res in result.items() if "predictor" in res}
+        write_json_atomic(args.asset, json_safe({
+            "format": FORMAT,
+            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "command": command,
+            "models": {env: [r["label"] for r in rows if r["env"] == env] for env in predictors},
+            "predictors": predictors,
+        }))  # fmt: skip
+        print(f"wrote {args.asset}")
+
+
+if __name__ == "__main__":
+    main()

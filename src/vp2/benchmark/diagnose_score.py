@@ -1,0 +1,189 @@
+"""The predicted control score: `vp2 diagnose`'s measurements mapped to a success rate.
+
+A diagnose report (:mod:`vp2.benchmark.diagnose`) holds cheap measurements of a model. This
+module turns them into **features** (:func:`features`), fits a **predictor** of a model's control
+success from models whose control runs were measured (:func:`fit`: an L2-regularised logistic
+regression of the success fraction on the standardised features, weighted by the trials behind
+each fraction), applies it (:func:`predict`), and validates it **leave-one-model-out**
+(:func:`leave_one_out`: each model's score comes from a predictor fitted without it).
+
+The fitted constants ship as ``vp2/assets/diagnose_predictor.json`` (written by
+``benchmarks.studies.diagnose_validation``, which also measures the held-out Spearman); without
+that file, or without constants for the report's environment, :func:`predicted_score` says why
+instead of giving a number.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: The asset's format tag.
+FORMAT = "vp2-diagnose-predictor/1"
+#: The features, in the order of the predictor's weights.
+FEATURES: tuple[str, ...] = (
+    "log_conditioning",  # log of the shuffled/true error ratio's lower 95% bound (>= 0)
+    "scripted_top",  # fraction of instances whose scripted plan is in the top 10%
+    "scripted_rank",  # 1 - (median rank - 1) / (candidates - 1): 1 = always the favourite
+    "repeatability",  # median Spearman of the ranking across model noise (0 if undefined)
+    "steering",  # 1 - exp(-median gamma * spread): 0 = flat scores, MPPI executes the mean
+)
+#: Why there is no score when vp2 ships no predictor.
+NO_PREDICTOR = "not yet fitted: needs the zoo's control runs"
+#: Ridge penalty on the standardised weights (not on the intercept).
+RIDGE = 1.0
+
+
+def _num(value: Any, default: float = 0.0) -> float:
+    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else default
+
+
+def features(report: Mapping[str, Any]) -> dict[str, float]:
+    """The predictor's features of one diagnose report (absent measures count as 0: a model
+    whose conditioning or planning was not measured gets no credit for it)."""
+    cond = report.get("action_conditioning") or {}
+    plan = report.get("planning") or {}
+    scripted = plan.get("scripted_plan") or {}
+    of = _num(scripted.get("of"), 0.0)
+    rank = scripted.get("median_rank")
+    low = _num((cond.get("ci") or [None])[0], 1.0)
+    return {
+        "log_conditioning": max(0.0, math.log(low)) if low > 0 else 0.0,
+        "scripted_top": _num(scripted.get("top_fraction")),
+        "scripted_rank": (1.0 - (_num(rank) - 1.0) / (of - 1.0))
+        if rank is not None and of > 1
+        else 0.0,
+        "repeatability": max(0.0, _num((plan.get("repeatability") or {}).get("median_rho"))),
+        "steering": 1.0
+        - math.exp(-max(0.0, _num((plan.get("spread") or {}).get("median_gamma_spread")))),
+    }
+
+
+def _matrix(rows: Sequence[Mapping[str, float]]) -> np.ndarray:
+    return np.array([[float(r[f]) for f in FEATURES] for r in rows], np.float64)
+
+
+def _sigmoid(z: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-np.clip(z, -30, 30)))
+
+
+def fit(
+    rows: Sequence[Mapping[str, float]],
+    success: Sequence[float],
+    trials: Sequence[int],
+    ridge: float = RIDGE,
+) -> dict[str, Any]:
+    """Fits ``success ~ sigmoid(b + w . standardised features)`` by Newton's method on the
+    binomial likelihood (each model's fraction weighted by its trials) plus ``ridge * |w|^2``.
+
+    Args:
+        rows: Features of each model (:func:`features`).
+        success: Each model's measured success fraction in [0, 1].
+        trials: The control trials behind each fraction.
+
+    Returns:
+        The predictor: feature means and scales, weights, intercept (plain data, JSON-ready).
+    """
+    x = _matrix(rows)
+    y = np.asarray(success, np.float64)
+    n = np.asarray(trials, np.float64)
+    if len(x) < 2 or len(y) != len(x) or len(n) != len(x):
+        raise ValueError(
+            f"fit needs matching rows, successes and trials for >= 2 models, got {len(x)}"
+        )
+    if np.any((y < 0) | (y > 1)) or np.any(n <= 0):
+        raise ValueError("successes must lie in [0, 1] and trials be positive")
+    mean = x.mean(axis=0)
+    scale = x.std(axis=0)
+    scale[scale < 1e-9] = 1.0  # a constant feature: weight stays ~0 under the ridge
+    z = np.hstack([np.ones((len(x), 1)), (x - mean) / scale])
+    penalty = np.diag([0.0] + [ridge] * len(FEATURES))
+    beta = np.zeros(z.shape[1])
+    beta[0] = math.log((y @ n + 0.5) / ((1 - y) @ n + 0.5))  # start at the overall rate
+    for _ in range(100):
+        p = _sigmoid(z @ beta)
+        grad = z.T @ (n * (p - y)) + penalty @ beta
+        hess = (z * (n * p * (1 - p))[:, None]).T @ z + penalty + 1e-9 * np.eye(len(beta))
+        step = np.linalg.solve(hess, grad)
+        beta -= step
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    return {
+        "features": list(FEATURES),
+        "mean": mean.tolist(),
+        "scale": scale.tolist(),
+        "intercept": float(beta[0]),
+        "weights": beta[1:].tolist(),
+        "ridge": ridge,
+    }
+
+
+def predict(predictor: Mapping[str, Any], row: Mapping[str, float]) -> float:
+    """The predicted success fraction of a model with features ``row``."""
+    if list(predictor["features"]) != list(FEATURES):
+        raise ValueError(
+            f"the predictor was fitted on features {predictor['features']}, this vp2 computes "
+            f"{list(FEATURES)}: refit it (benchmarks.studies.diagnose_validation)"
+        )
+    x = (_matrix([row])[0] - np.asarray(predictor["mean"])) / np.asarray(predictor["scale"])
+    return float(
+        _sigmoid(np.asarray(predictor["intercept"] + x @ np.asarray(predictor["weights"])))
+    )
+
+
+def leave_one_out(
+    rows: Sequence[Mapping[str, float]],
+    success: Sequence[float],
+    trials: Sequence[int],
+    ridge: float = RIDGE,
+) -> list[float]:
+    """Each model's predicted score from a predictor fitted on all the other models."""
+    out = []
+    for i in range(len(rows)):
+        keep = [j for j in range(len(rows)) if j != i]
+        predictor = fit([rows[j] for j in keep], [success[j] for j in keep],
+                        [trials[j] for j in keep], ridge)  # fmt: skip
+        out.append(predict(predictor, rows[i]))
+    return out
+
+
+def load_predictor(path: str | Path | None = None) -> dict[str, Any] | None:
+    """The shipped predictor asset (or ``path``); ``None`` when there is none."""
+    if path is None:
+        ref = resources.files("vp2") / "assets" / "diagnose_predictor.json"
+        if not ref.is_file():
+            return None
+        return json.loads(ref.read_text())
+    return json.loads(Path(path).read_text())
+
+
+def predicted_score(
+    report: Mapping[str, Any], asset: Mapping[str, Any] | None
+) -> tuple[float | None, str]:
+    """``(score, reason)``: the report's predicted control success for its environment, or
+    ``None`` and why not (no asset, no predictor fitted for the environment, or the model was
+    not measured: no conditioning and no planning measures)."""
+    if asset is None:
+        return None, NO_PREDICTOR
+    predictor = (asset.get("predictors") or {}).get(report.get("env"))
+    if predictor is None:
+        return None, f"not fitted for {report.get('env')}: no control runs of its models yet"
+    plan = (report.get("planning") or {}).get("scripted_plan") or {}
+    if not plan.get("instances"):
+        return None, "not predicted: the planning measures were skipped (--instances-per-task 0)"
+    validation = predictor.get("validation") or {}
+    rho = validation.get("held_out_spearman")
+    note = (
+        f"held-out Spearman {rho:+.2f} over {validation.get('models')} models"
+        if rho is not None
+        else "unvalidated"
+    )
+    return predict(
+        predictor, features(report)
+    ), f"success fraction, predictor fitted on {predictor.get('models_fitted')} models ({note})"

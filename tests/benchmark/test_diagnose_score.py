@@ -1,0 +1,138 @@
+"""The predicted control score: features of a diagnose report, the fitted predictor, and its
+leave-one-model-out validation (on synthetic reports whose success is known)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from benchmarks.studies import diagnose_validation as dv
+
+from vp2.benchmark.diagnose_score import (
+    FEATURES,
+    NO_PREDICTOR,
+    features,
+    fit,
+    leave_one_out,
+    predict,
+    predicted_score,
+)
+
+
+def _report(low: float, top: float, rank: float, rho: float | None, gs: float, env="robodesk"):
+    return {
+        "env": env,
+        "action_conditioning": {"ratio": low + 0.05, "ci": [low, low + 0.1]},
+        "planning": {
+            "scripted_plan": {"instances": 14, "of": 51, "median_rank": rank, "top_fraction": top},
+            "repeatability": {"median_rho": rho},
+            "spread": {"median_gamma_spread": gs},
+        },
+    }
+
+
+def test_features_of_a_report():
+    f = features(_report(1.5, 0.5, 11, 0.8, 2.0))
+    assert list(f) == list(FEATURES)
+    assert f["log_conditioning"] == pytest.approx(math.log(1.5))
+    assert f["scripted_top"] == 0.5
+    assert f["scripted_rank"] == pytest.approx(1 - 10 / 50)
+    assert f["repeatability"] == 0.8
+    assert f["steering"] == pytest.approx(1 - math.exp(-2.0))
+    # An action-blind model: interval below 1, undefined ranking, flat scores: no credit.
+    blind = features(_report(0.98, 0.0, 51, None, 0.0))
+    assert blind == {"log_conditioning": 0.0, "scripted_top": 0.0, "scripted_rank": 0.0,
+                     "repeatability": 0.0, "steering": 0.0}  # fmt: skip
+
+
+def _synthetic(n: int = 8):
+    """Models whose success rises with their conditioning and scripted-plan rank."""
+    reports, success = [], []
+    for k in range(n):
+        q = k / (n - 1)
+        reports.append(_report(1.0 + 0.6 * q, q, 51 - 50 * q, q, 3 * q))
+        success.append(0.05 + 0.6 * q)
+    return [features(r) for r in reports], success
+
+
+def test_fit_reproduces_a_monotone_relation_and_leave_one_out_ranks_held_out_models():
+    rows, success = _synthetic()
+    predictor = fit(rows, success, [20] * len(rows))
+    predicted = [predict(predictor, r) for r in rows]
+    assert np.all(np.diff(predicted) > 0)
+    assert max(abs(p - s) for p, s in zip(predicted, success, strict=True)) < 0.1
+    held_out = leave_one_out(rows, success, [20] * len(rows))
+    assert np.all(np.diff(held_out) > 0)  # every held-out model in its measured place
+    json.dumps(predictor)  # plain data
+
+
+def test_predict_refuses_a_predictor_of_other_features():
+    rows, success = _synthetic(4)
+    predictor = fit(rows, success, [10] * 4)
+    predictor["features"] = ["ssim"]
+    with pytest.raises(ValueError, match="refit"):
+        predict(predictor, rows[0])
+
+
+def test_fit_rejects_bad_input():
+    rows, _ = _synthetic(3)
+    with pytest.raises(ValueError, match="in \\[0, 1\\]"):
+        fit(rows, [0.1, 1.5, 0.2], [5, 5, 5])
+    with pytest.raises(ValueError, match=">= 2 models"):
+        fit(rows[:1], [0.1], [5])
+
+
+def test_predicted_score_says_why_when_there_is_none():
+    report = _report(1.5, 0.5, 11, 0.8, 2.0)
+    assert predicted_score(report, None) == (None, NO_PREDICTOR)
+    rows, success = _synthetic(5)
+    predictor = fit(rows, success, [10] * 5)
+    predictor.update(models_fitted=5, validation={"held_out_spearman": 0.9, "models": 5})
+    asset = {"predictors": {"robodesk": predictor}}
+    score, reason = predicted_score(report, asset)
+    assert 0 < score < 1 and "held-out Spearman +0.90 over 5 models" in reason
+    score, reason = predicted_score(_report(1.5, 0.5, 11, 0.8, 2.0, env="tabletop"), asset)
+    assert score is None and "not fitted for tabletop" in reason
+    report["planning"]["scripted_plan"]["instances"] = 0
+    assert predicted_score(report, asset)[0] is None
+
+
+def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path):
+    rows, success = _synthetic(6)
+    entries = []
+    for k, q in enumerate(np.linspace(0, 1, 6)):
+        label = f"m{k}"
+        report = _report(1.0 + 0.6 * q, q, 51 - 50 * q, q, 3 * q)
+        (tmp_path / "out" / "reports").mkdir(parents=True, exist_ok=True)
+        (tmp_path / "out" / "reports" / f"{label}.json").write_text(json.dumps(report))
+        run = tmp_path / "runs" / label
+        run.mkdir(parents=True)
+        solved = round(10 * success[k])
+        with (run / "trials.jsonl").open("w") as f:
+            for t in range(10):
+                f.write(json.dumps({"task": "robodesk/push_red", "success": t < solved}) + "\n")
+        metrics = tmp_path / "runs" / f"{label}.json"
+        # SSIM unrelated to success; FVD falls as success rises.
+        metrics.write_text(json.dumps({"metrics": {"ssim": [0.5, 0.9, 0.6, 0.8, 0.7, 0.55][k],
+                                                   "fvd": 500 - 50 * k}}))  # fmt: skip
+        entries.append({"label": label, "env": "robodesk", "model": "unused",
+                        "control": [str(run)], "metrics": str(metrics)})  # fmt: skip
+    models = tmp_path / "models.json"
+    models.write_text(json.dumps({"models": entries}))
+    asset = tmp_path / "asset.json"
+    dv.main(["--models", str(models), "--out", str(tmp_path / "out"), "--write-asset",
+             "--asset", str(asset)])  # fmt: skip
+    result = json.loads((tmp_path / "out" / "validation.json").read_text())["result"]["robodesk"]
+    assert result["spearman"]["predicted (held out)"]["rho"] == pytest.approx(1.0)
+    assert result["spearman"]["fvd"]["rho"] == pytest.approx(1.0)  # -FVD rises with success
+    assert abs(result["spearman"]["ssim"]["rho"]) < 0.5
+    assert result["spearman"]["lpips"]["rho"] is None
+    shipped = json.loads(asset.read_text())
+    assert shipped["models"]["robodesk"] == [f"m{k}" for k in range(6)]
+    assert shipped["predictors"]["robodesk"]["validation"]["held_out_spearman"] == pytest.approx(
+        1.0
+    )
+    page = (tmp_path / "out" / "validation.md").read_text()
+    assert "| predicted (held out) | +1.00 | 6 |" in page
