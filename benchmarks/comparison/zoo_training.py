@@ -4,13 +4,16 @@
         --data data/robodesk-20x-64px --levels 15 30 60 90 120 --out outputs/zoo-training
 
 Every family of :data:`~benchmarks.comparison.model_comparison.FAMILIES` (or ``--families``)
-trains in rounds: round ``L`` brings each family's training wall time (``vp2 train
---max-minutes``, summed over resumed sessions; validation and checkpoint writing left out) to
-``L`` minutes, family after family, before any family starts round ``L + 1``. A session cut
-short therefore leaves every family within one round of the others, and the same command
-continues where it stopped (an interrupted training resumes from its newest checkpoint).
-MaskViT trains its tokenizer for the first ``--tokenizer-minutes`` of its budget and its
-transformer for the rest (the transformer needs the finished tokenizer).
+trains in rounds: round ``L`` brings each family's training time (``vp2 train --max-minutes``,
+summed over resumed sessions; validation and checkpoint writing left out) to ``L`` minutes,
+family after family, before any family starts round ``L + 1``. A session cut short therefore
+leaves every family within one round of the others, and the same command continues where it
+stopped (an interrupted training resumes from its newest checkpoint). The training time is
+the process's **CPU time** (``--clock cpu``, the default on a CPU: one thread, data loaded in
+the process, so a minute is a core-minute whatever else the machine runs) or wall time
+(``--clock wall``, the default on a GPU). MaskViT trains its tokenizer for the first
+``--tokenizer-minutes`` of its budget and its transformer for the rest (the transformer needs
+the finished tokenizer).
 
 After each round a family's weights are exported (float16, inference only) to
 ``snapshots/<family>-<L>min.pt`` and its **action conditioning** is measured on held-out clips:
@@ -52,6 +55,7 @@ from vp2.benchmark.diagnose_measures import conditioning_errors, held_out_clips,
 from vp2.benchmark.model_spec import resolve_model
 from vp2.data.storage import load_manifest
 from vp2.report.charts import line_chart
+from vp2.training import trainer as trainer_module
 from vp2.training.checkpoint import list_checkpoints
 from vp2.training.config import TrainConfig
 from vp2.training.export import export_checkpoint
@@ -81,6 +85,7 @@ class Settings:
     clips: int
     samples: int
     target: float
+    clock: str  # "cpu": process CPU time; "wall": wall time
     smoke: bool
     command: str
 
@@ -169,6 +174,7 @@ def point(s: Settings, family: str, level: float) -> dict[str, Any] | None:
         "batch_size": s.batch_size,
         "lr": s.lr,
         "tokenizer_minutes": s.tokenizer_minutes,
+        "clock": s.clock,
         "clips": s.clips,
         "samples": s.samples,
     }
@@ -273,6 +279,8 @@ def publish(s: Settings) -> None:
 def run(s: Settings) -> list[dict[str, Any]]:
     """Every round of every family, in order; returns the points measured or found."""
     torch.set_num_threads(s.threads)
+    # The trainer's budget clock: CPU time makes a minute a core-minute on a shared machine.
+    trainer_module.clock = time.process_time if s.clock == "cpu" else time.monotonic
     s.out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(s.out / "zoo_training.json", json_safe(dataclasses.asdict(s)))
     done = []
@@ -319,6 +327,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--clips", type=int, default=64, help="held-out clips per measurement")
     p.add_argument("--samples", type=int, default=2, help="sampling seeds per clip")
     p.add_argument("--target", type=float, default=1.1)
+    p.add_argument(
+        "--clock",
+        choices=["cpu", "wall"],
+        default=None,
+        help="what a budget minute is: process CPU time (default on a CPU) or wall time (GPU)",
+    )
     p.add_argument("--out", type=Path, default=Path("outputs/zoo-training"))
     p.add_argument("--smoke", action="store_true", help="tiny settings for the test")
     return p.parse_args(argv)
@@ -333,6 +347,12 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str] | None) -> 
             f"--data {args.data} is not a dataset directory; make the default one with "
             "`vp2 collect robodesk`"
         )
+    device = str(resolve_device(args.device))
+    clock = args.clock or ("cpu" if device == "cpu" else "wall")
+    if clock == "cpu" and (args.threads != 1 or device != "cpu"):
+        raise SystemExit(
+            "--clock cpu counts one core's time: it needs --threads 1 on a CPU (use --clock wall)"
+        )
     return Settings(
         out=args.out,
         data=args.data,
@@ -341,13 +361,14 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str] | None) -> 
         tokenizer_minutes=args.tokenizer_minutes,
         batch_size=args.batch_size,
         lr=args.lr,
-        device=str(resolve_device(args.device)),
+        device=device,
         threads=args.threads,
         ckpt_interval=args.ckpt_interval,
         eval_batches=args.eval_batches,
         clips=args.clips,
         samples=args.samples,
         target=args.target,
+        clock=clock,
         smoke=args.smoke,
         command=common.command_line(__spec__.name, argv),
     )

@@ -10,7 +10,12 @@ import sys
 from pathlib import Path
 
 import pytest
-from benchmarks.comparison.zoo_training import curve_markdown, stage_minutes
+from benchmarks.comparison.zoo_training import (
+    curve_markdown,
+    parse_args,
+    settings_from_args,
+    stage_minutes,
+)
 
 from vp2.data.collect import CollectionConfig, collect
 
@@ -44,6 +49,16 @@ def test_maskvit_spends_its_first_minutes_on_the_tokenizer():
     assert stage_minutes("maskvit", 120, 20) == [20, 100]
 
 
+def test_cpu_clock_needs_one_thread_on_a_cpu(tmp_path):
+    args = parse_args(["--data", str(tmp_path), "--device", "cpu"])
+    assert settings_from_args(args, None).clock == "cpu"
+    args = parse_args(["--data", str(tmp_path), "--device", "cpu", "--threads", "2"])
+    with pytest.raises(SystemExit, match="--threads 1"):
+        settings_from_args(args, None)
+    args = parse_args(["--data", str(tmp_path), "--threads", "2", "--clock", "wall"])
+    assert settings_from_args(args, None).clock == "wall"
+
+
 def test_curve_markdown_marks_the_points_above_the_target():
     point = {
         "family": "fitvid", "level_minutes": 15, "train_minutes": 15.02, "step": 812,
@@ -65,6 +80,7 @@ def test_rounds_train_every_family_in_turn_and_resume(tmp_path):
     assert "[1min] svg_prime: step 2" in first and "[1min] fitvid: step 2" in first
     point = json.loads((out / "curve" / "svg_prime-1min.json").read_text())
     assert point["step"] == 2 and point["conditioning"]["clips"] == 4
+    assert point["settings"]["clock"] == "cpu"  # a budget minute is a core-minute on a CPU
     lo, hi = point["conditioning"]["ci"]
     assert lo <= point["conditioning"]["ratio"] <= hi
     assert (out / "snapshots" / "svg_prime-1min.pt").is_file()
