@@ -180,8 +180,9 @@ def measure_scale(args) -> None:
     ).save(Path(args.out_jsonl).with_name(f"sheet-{args.scale:g}.png"))
 
 
-def shipped_scale1(rows: list[dict]) -> dict[tuple[str, int], bool]:
-    """The shipped samples-50 table's oracle success of the scale-1 instances it holds."""
+def shipped_scale1(rows: list[dict], first: int) -> dict[tuple[str, int], bool]:
+    """The shipped samples-50 table's oracle success of the scale-1 instances it holds, among
+    each task's first ``first`` (the instances the other scales' trials ran on)."""
     path = Path("results/oracle/samples-50/trials.jsonl")
     found = {}
     for line in path.read_text().splitlines():
@@ -190,12 +191,12 @@ def shipped_scale1(rows: list[dict]) -> dict[tuple[str, int], bool]:
     out = {}
     for row in rows:
         hit = found.get((row["task"], row["instance"]))
-        if hit is not None and hit[1] in (None, row["fingerprint"]):
+        if row["instance"] < first and hit is not None and hit[1] in (None, row["fingerprint"]):
             out[(row["task"], row["instance"])] = hit[0]
     return out
 
 
-def summary_markdown(by_scale: dict[float, list[dict]], command: str) -> str:
+def summary_markdown(by_scale: dict[float, list[dict]], command: str, oracle_instances: int) -> str:
     lines = [
         "# Tabletop object scale",
         "",
@@ -208,7 +209,7 @@ def summary_markdown(by_scale: dict[float, list[dict]], command: str) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for scale, rows in sorted(by_scale.items()):
-        shipped = shipped_scale1(rows) if scale == 1 else {}
+        shipped = shipped_scale1(rows, oracle_instances) if scale == 1 else {}
         for task in TASKS:
             rs = [r for r in rows if r["task"] == task]
             if not rs:
@@ -248,6 +249,8 @@ def main() -> None:
     )
     parser.add_argument("-n", "--num-samples", type=int, default=50)
     parser.add_argument("--out", type=Path, default=Path("outputs/object-scale"))
+    parser.add_argument("--summary-only", action="store_true",
+                        help="rewrite summary.md from the scales' files; run nothing")
     parser.add_argument("--one", action="store_true", help=argparse_suppress())
     parser.add_argument("--scale", type=float, help=argparse_suppress())
     parser.add_argument("--no-oracle", action="store_true", help=argparse_suppress())
@@ -266,10 +269,13 @@ def main() -> None:
                    "-n", str(args.num_samples), "--out-jsonl", str(part)]  # fmt: skip
         if scale in args.no_oracle_at:
             command.append("--no-oracle")
-        subprocess.run(command, check=True)
+        if not args.summary_only:
+            subprocess.run(command, check=True)
         by_scale[scale] = [json.loads(x) for x in part.read_text().splitlines()]
         (args.out / "summary.md").write_text(
-            summary_markdown(by_scale, common.command_line(__spec__.name, None))
+            summary_markdown(
+                by_scale, common.command_line(__spec__.name, None), args.oracle_instances
+            )
         )
     print((args.out / "summary.md").read_text())
 
