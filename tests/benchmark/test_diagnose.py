@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import re
 from pathlib import Path
 
 import numpy as np
@@ -261,6 +262,19 @@ def test_run_warns_before_the_first_trial_of_an_action_blind_model(default_data,
                               "the actions (shuffled/true error ratio 1.00, 95% CI 1.00-1.00 on "
                               "10 held-out clips of data/tabletop-100x-64px)")
     assert warning.endswith("it will plan like repeat-last-frame; see `vp2 diagnose`")
+
+
+def test_the_precheck_is_kept_in_the_run_and_shown_by_its_report(default_data, tmp_path):
+    _run(f"{HERE}:StillModel", "runs/still")
+    saved = json.loads(Path("runs/still/precheck.json").read_text())["precheck"]
+    assert [m["env"] for m in saved] == ["tabletop"]
+    assert saved[0]["ratio"] == pytest.approx(1.0) and saved[0]["verdict"]["status"] == "blind"
+    from vp2.report.page import write_report
+
+    html = write_report(["runs/still"], tmp_path / "report.html").read_text()
+    row = re.search(r'<table class="diagnosis">.*?</table>', html, re.S).group(0)
+    assert "vp2 run pre-check" in row and 'class="diag-blind"' in row
+    assert "1.000 [1.000, 1.000] on 10 clips" in row
 
 
 def test_run_does_not_warn_for_a_model_that_uses_its_actions(default_data, caplog):

@@ -336,3 +336,31 @@ def test_a_run_without_finished_trials_still_reports(tmp_path):
     assert _bars(html) == {} and ">n/a</text>" in html
     with pytest.raises(FileNotFoundError, match="not a vp2 run directory"):
         write_report([tmp_path / "nothing"], tmp_path / "x.html")
+
+
+def test_diagnosis_section_shows_a_vp2_diagnose_report_beside_measured_success(tmp_path):
+    from tests.report.report_runs import write_handmade_run
+
+    run = write_handmade_run(tmp_path / "run", "svg_prime:x.pt", {(0, 0): True, (1, 0): False})
+    (run / "diagnose.json").write_text(json.dumps({
+        "env": "tabletop",
+        "action_conditioning": {"ratio": 1.42, "ci": [1.3, 1.55], "clips": 64},
+        "planning": {"scripted_plan": {"instances": 8, "of": 51, "median_rank": 3,
+                                       "top_fraction": 0.75}},
+        "verdicts": {"conditioning": {"status": "uses", "text": "predictions depend on the actions"}},
+        "predicted_control_score": 0.41,
+        "predicted_control_score_reason": "fitted",
+    }))  # fmt: skip
+    html = write_report([run], tmp_path / "report.html").read_text()
+    row = re.search(r'<table class="diagnosis">.*?</table>', html, re.S).group(0)
+    cells = re.findall(r"<td[^>]*>(.*?)</td>", row)
+    assert cells == ["<b>svg_prime:x.pt</b>", "tabletop", "vp2 diagnose",
+                     "1.420 [1.300, 1.550] on 64 clips", "median rank 3 of 51, top 10% on 75%",
+                     "41%", "50%"]  # fmt: skip
+
+
+def test_diagnosis_section_says_when_no_run_has_one(tmp_path):
+    html = _report(tmp_path, names=("repeat",))
+    section = html.split("<h2>Diagnosis</h2>", 1)[1].split("<h2>", 1)[0]
+    assert "No run directory here holds a diagnosis" in section
+    assert '<table class="diagnosis">' not in section

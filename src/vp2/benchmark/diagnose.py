@@ -71,6 +71,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "FORMAT",
     "PRECHECK_CLIPS",
+    "PRECHECK_FILE",
     "PREDICTED_SCORE_REASON",
     "REPORT_FILE",
     "DiagnoseConfig",
@@ -91,6 +92,8 @@ REPORT_FILE = "diagnose.json"
 PREDICTED_SCORE_REASON = NO_PREDICTOR
 #: Held-out clips of the run's pre-check (:func:`precheck_model`), one sampling seed.
 PRECHECK_CLIPS = 16
+#: The file of a run directory that holds its pre-check's measures (the report reads it).
+PRECHECK_FILE = "precheck.json"
 
 
 @dataclasses.dataclass(frozen=True)

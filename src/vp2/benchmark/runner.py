@@ -7,8 +7,8 @@
 2. creates the run directory with the resolved ``config.yaml`` (or, with ``resume=True``,
    checks that the protocol settings match the existing one); before the first trial of a
    learned model, :func:`vp2.benchmark.diagnose.precheck_model` measures on a few held-out
-   clips whether its predictions depend on the actions and warns if not
-   (``RunConfig.precheck``);
+   clips whether its predictions depend on the actions, warns if not and keeps the figures in
+   ``precheck.json`` (``RunConfig.precheck``);
 3. runs the trials not yet in ``trials.jsonl`` in worker processes, each of which builds the
    model once per environment; results stream back to this (driver) process, which alone
    writes files: a GIF per trial, then one appended JSON line;
@@ -60,7 +60,7 @@ from typing import Any
 from tqdm.auto import tqdm
 
 from vp2.benchmark.config import RunConfig
-from vp2.benchmark.diagnose import precheck_model
+from vp2.benchmark.diagnose import PRECHECK_FILE, precheck_model
 from vp2.benchmark.gifs import write_trial_gifs
 from vp2.benchmark.model_spec import MODEL_DOCS, check_spec
 from vp2.benchmark.results import Summary, format_summary, is_ok, trial_key, trial_keys
@@ -79,6 +79,7 @@ from vp2.benchmark.worker import (
 from vp2.data.suite import TaskInstance, TaskSuite
 from vp2.envs import ENV_TASKS
 from vp2.utils.executors import LiveQueue, LocalExecutor, RayExecutor, WorkerLost
+from vp2.utils.io import json_safe, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -203,7 +204,9 @@ def run_benchmark(
 
     jobs = [Job(key=k, instance=by_key[k[:2]]) for k in todo]
     if config.precheck and jobs and not existing:  # before the run's first trial
-        precheck_model(config, envs_of(jobs))
+        measures = precheck_model(config, envs_of(jobs))
+        if measures:  # the report shows it beside the control score
+            write_json_atomic(run_dir / PRECHECK_FILE, json_safe({"precheck": measures}))
     max_attempts = config.max_retries + 1
     requeue: collections.deque[Job] = collections.deque()
     num_run = successes = finished = 0

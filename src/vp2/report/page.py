@@ -33,6 +33,7 @@ from typing import Any
 from vp2.report.runs import PathLike, RunView, load_runs
 from vp2.report.sections import (
     CSS,
+    diagnosis_section,
     gallery,
     normalised_section,
     runs_table,
@@ -79,6 +80,8 @@ def render_report(
         success_table(runs),
         "<h2>Oracle-normalised score</h2>",
         normalised_section(runs),
+        "<h2>Diagnosis</h2>",
+        diagnosis_section(runs),
     ]
     if study_html:
         parts += ["<h2>Metrics versus control</h2>", study_html]

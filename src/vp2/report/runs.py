@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from vp2.benchmark.config import planner_of
+from vp2.benchmark.diagnose import PRECHECK_FILE, REPORT_FILE
 from vp2.benchmark.results import Summary, summarize
 from vp2.benchmark.run_dir import RunDir
 from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
@@ -36,6 +38,8 @@ class RunView:
         outside: The note on trials in the directory that its config does not cover, which
             are not counted (:meth:`~vp2.benchmark.run_dir.RunDir.split_trials`); ``None``:
             none.
+        diagnosis: The model's diagnosis found in the directory, one entry per environment
+            (:func:`read_diagnosis`); empty when there is none.
     """
 
     run_dir: Path
@@ -48,6 +52,56 @@ class RunView:
     oracle_source: str | None = None
     oracle_note: str | None = None
     outside: str | None = None
+    diagnosis: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+
+
+def read_diagnosis(run_dir: PathLike) -> list[dict[str, Any]]:
+    """The diagnosis a run directory holds, one entry per environment: from ``diagnose.json``
+    (``vp2 diagnose --model M --out RUN_DIR``: every measure and the predicted score) where
+    present, else from ``precheck.json`` (what ``vp2 run`` measured before its first trial:
+    action conditioning only).
+
+    Each entry: ``env``, ``source`` (``"vp2 diagnose"`` or ``"vp2 run pre-check"``),
+    ``conditioning`` (``ratio``, ``ci``, ``clips``, ``status``, ``text``, or ``None``),
+    ``scripted`` (``median_rank``, ``of``, ``top_fraction``, or ``None``), ``predicted`` and
+    ``predicted_reason`` (``None`` for a pre-check).
+    """
+    path = Path(run_dir)
+    full = path / REPORT_FILE
+    if full.is_file():
+        report = json.loads(full.read_text())
+        cond = report.get("action_conditioning") or {}
+        verdict = (report.get("verdicts") or {}).get("conditioning") or {}
+        scripted = (report.get("planning") or {}).get("scripted_plan") or {}
+        return [{
+            "env": report.get("env"),
+            "source": "vp2 diagnose",
+            "conditioning": None if "ratio" not in cond else {
+                "ratio": cond["ratio"], "ci": cond.get("ci"), "clips": cond.get("clips"),
+                "status": verdict.get("status"), "text": verdict.get("text"),
+            },
+            "scripted": scripted if scripted.get("instances") else None,
+            "predicted": report.get("predicted_control_score"),
+            "predicted_reason": report.get("predicted_control_score_reason"),
+        }]  # fmt: skip
+    pre = path / PRECHECK_FILE
+    if not pre.is_file():
+        return []
+    out = []
+    for m in json.loads(pre.read_text()).get("precheck", []):
+        verdict = m.get("verdict") or {}
+        out.append({
+            "env": m.get("env"),
+            "source": "vp2 run pre-check",
+            "conditioning": {
+                "ratio": m.get("ratio"), "ci": m.get("ci"), "clips": m.get("clips"),
+                "status": verdict.get("status"), "text": verdict.get("text"),
+            },
+            "scripted": None,
+            "predicted": None,
+            "predicted_reason": None,
+        })  # fmt: skip
+    return out
 
 
 def model_label(config: Mapping[str, Any]) -> str:
@@ -97,6 +151,7 @@ def load_runs(
                 summarize(records),
                 is_oracle_config(config),
                 outside=note,
+                diagnosis=read_diagnosis(run.path),
             )
         )
     counts: dict[str, int] = {}

@@ -254,8 +254,72 @@ h4 .sub{display:inline;font-weight:normal} .score{font-size:1.3em;font-weight:bo
 border-radius:4px;max-width:100%} figure.ok{border-color:#2a9d4b} figure.fail{border-color:#c44}
 img{image-rendering:pixelated;display:block;max-width:100%} img.plan{margin-top:6px}
 .warn{color:#a40} .scatters{display:flex;flex-wrap:wrap;gap:8px} ul.notes{color:#555}
+.diag-blind,.diag-inverted{color:#a40;font-weight:bold} .diag-uses{color:#070}
 code{background:#f3f3f3;padding:0 3px} .wide{max-width:100%;overflow-x:auto}
 table.runs{table-layout:auto;width:100%} table.runs code{word-break:break-all}
 figure.chart svg,figure.scatter svg{max-width:100%;height:auto}
 table.success{font-size:.9em} table.success td.num{white-space:normal} .nw{white-space:nowrap}
 """
+
+
+def _env_success(run: RunView, env: str) -> str:
+    mean = run.summary.env_means.get(env)
+    return "–" if mean is None else f"{100 * mean:.0f}%"
+
+
+def diagnosis_section(runs: Sequence[RunView]) -> str:
+    """Each run's diagnosis (``vp2 diagnose`` or the run's pre-check) beside its success."""
+    rows = []
+    for r in runs:
+        for d in r.diagnosis:
+            env = str(d.get("env"))
+            c = d.get("conditioning")
+            if c and c.get("ratio") is not None:
+                ci = c.get("ci") or [None, None]
+                cond = (
+                    f"{c['ratio']:.3f} [{ci[0]:.3f}, {ci[1]:.3f}] on {c.get('clips')} clips"
+                    if None not in ci else f"{c['ratio']:.3f}"
+                )
+                cond_cell = (
+                    f'<td class="diag-{escape(str(c.get("status")))}" '
+                    f'title="{escape(str(c.get("text") or ""))}">{escape(cond)}</td>'
+                )
+            else:
+                cond_cell = "<td>not measured</td>"
+            sp = d.get("scripted")
+            scripted = (
+                f"median rank {sp.get('median_rank')} of {sp.get('of')}, top 10% on "
+                f"{100 * (sp.get('top_fraction') or 0):.0f}%" if sp else "not measured"
+            )
+            pred = d.get("predicted")
+            pred_cell = (
+                f"{100 * pred:.0f}%" if pred is not None
+                else escape(str(d.get("predicted_reason") or "–"))
+            )
+            rows.append(
+                f"<tr><td><b>{escape(r.label)}</b></td><td>{escape(env)}</td>"
+                f"<td>{escape(str(d.get('source')))}</td>{cond_cell}<td>{escape(scripted)}</td>"
+                f'<td class="num">{pred_cell}</td>'
+                f'<td class="num">{_env_success(r, env)}</td></tr>'
+            )
+    intro = (
+        "<p>What the model's cheap measurements said before planning (<code>vp2 run</code>'s "
+        "pre-check on held-out clips, or <code>vp2 diagnose --model M --out RUN_DIR</code>), "
+        "beside the success it then measured. Action conditioning: error with shuffled / "
+        "true actions, 95% interval; an interval reaching 1 means the predictions ignore the "
+        "actions (what each measure means: docs/diagnose.md in the vp2 repository).</p>"
+    )
+    if not rows:
+        return intro.replace(
+            "</p>",
+            " No run directory here holds a diagnosis (the pre-check runs for learned models "
+            "only).</p>",
+            1,
+        )
+    return (
+        intro
+        + '<div class="wide"><table class="diagnosis"><thead><tr><th>model</th><th>env</th>'
+        "<th>from</th><th>action conditioning</th><th>scripted plan</th>"
+        "<th>predicted success</th><th>measured success</th></tr></thead>"
+        f"<tbody>{''.join(rows)}</tbody></table></div>"
+    )
