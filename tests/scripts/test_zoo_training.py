@@ -94,5 +94,9 @@ def test_rounds_train_every_family_in_turn_and_resume(tmp_path):
     assert "[2min] fitvid: step 4" in second
     svg = (out / "curve.svg").read_text()
     assert svg.count('class="pt"') == 4 and 'data-series="fitvid"' in svg
+    assert "training time (core-minutes)" in svg
+    (out / "curve.svg").unlink()
+    _run(data, out, "1", "2", "--publish-only")  # rewrites the page, trains nothing
+    assert (out / "curve.svg").read_text() == svg
     table = (out / "curve.md").read_text()
     assert sum(line.startswith(("| svg_prime |", "| fitvid |")) for line in table.splitlines()) == 4
