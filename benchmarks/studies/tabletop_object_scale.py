@@ -33,6 +33,7 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -233,6 +234,37 @@ def summary_markdown(by_scale: dict[float, list[dict]], command: str, oracle_ins
     return "\n".join(lines) + "\n"
 
 
+def shipped_by_distance(bins: Sequence[float] = (0.0, 0.1, 0.2, 0.31)) -> str:
+    """The shipped samples-50 table's tabletop trials by the pushed object's start-to-goal
+    distance (from the shipped suite's states; no simulation): solved / trials per bin."""
+    from vp2.data.suite import TaskSuite
+    from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
+
+    suite = TaskSuite.load()
+    rows = []
+    for line in Path("results/oracle/samples-50/trials.jsonl").read_text().splitlines():
+        r = json.loads(line)
+        if not r["task"].startswith("tabletop/"):
+            continue
+        inst = suite.get(r["task"], int(r["instance"]))
+        k = OBJECT_NAMES.index(r["task"].split("push_")[1])
+        p0 = TabletopEnv.object_positions_from_state(inst.init_state)[k]
+        p1 = TabletopEnv.object_positions_from_state(inst.goal_state)[k]
+        rows.append((float(np.linalg.norm(p1 - p0)), bool(r["success"]), r["task"]))
+    lines = [
+        "| start-to-goal distance | solved | categories |",
+        "|---|---|---|",
+    ]
+    for lo, hi in zip(bins[:-1], bins[1:], strict=True):
+        inside = [x for x in rows if lo <= x[0] < hi]
+        cats = sorted({t.split("push_")[1] for _, _, t in inside})
+        lines.append(
+            f"| {lo:.2f}–{hi:.2f} m | {sum(s for _, s, _ in inside)}/{len(inside)} | "
+            f"{', '.join(cats)} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     parser = common.argument_parser(__spec__.name, __doc__)
     parser.add_argument("--scales", type=float, nargs="+", default=[1.0, 1.5, 2.0])
@@ -249,6 +281,8 @@ def main() -> None:
     )
     parser.add_argument("-n", "--num-samples", type=int, default=50)
     parser.add_argument("--out", type=Path, default=Path("outputs/object-scale"))
+    parser.add_argument("--by-distance", action="store_true",
+                        help="print the shipped scale-1 trials by push distance; run nothing")
     parser.add_argument("--summary-only", action="store_true",
                         help="rewrite summary.md from the scales' files; run nothing")
     parser.add_argument("--one", action="store_true", help=argparse_suppress())
@@ -258,6 +292,9 @@ def main() -> None:
     args = parser.parse_args()
     if args.one:
         measure_scale(args)
+        return
+    if args.by_distance:
+        print(shipped_by_distance())
         return
     args.out.mkdir(parents=True, exist_ok=True)
     by_scale = {}
