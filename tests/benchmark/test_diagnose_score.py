@@ -136,3 +136,13 @@ def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path)
     )
     page = (tmp_path / "out" / "validation.md").read_text()
     assert "| predicted (held out) | +1.00 | 6 |" in page
+
+
+def test_a_wide_interval_around_1_is_inconclusive_not_blind():
+    from vp2.benchmark.diagnose_verdicts import conditioning_verdict
+
+    # The pre-check of a model that does use its actions, on 16 clips (64 clips: 1.13 [1.04, 1.23]).
+    wide = conditioning_verdict({"ratio": 1.07, "ci": [0.84, 1.39]})
+    assert wide["status"] == "inconclusive" and "39%" in wide["text"]
+    assert conditioning_verdict({"ratio": 1.0, "ci": [0.999, 1.001]})["status"] == "blind"
+    assert conditioning_verdict({"ratio": 1.13, "ci": [1.04, 1.23]})["status"] == "uses"

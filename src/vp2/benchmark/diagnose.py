@@ -363,6 +363,9 @@ def precheck_model(config: RunConfig, envs: Sequence[str]) -> list[dict[str, Any
                 "model %s: predictions do not measurably depend on the actions (%s): it will "
                 "plan like repeat-last-frame; see `vp2 diagnose`", config.model, figure,
             )
+        elif verdict["status"] == "inconclusive":
+            log.warning("model %s: the pre-check cannot tell whether the predictions depend on "
+                        "the actions (%s); see `vp2 diagnose`", config.model, figure)
         elif verdict["status"] == "inverted":
             log.warning("model %s: %s (%s); see `vp2 diagnose`", config.model, verdict["text"], figure)
         else:

@@ -22,8 +22,9 @@ from typing import Any
 from vp2 import spec
 from vp2.benchmark.diagnose_measures import cross_task_cosine
 
-#: A conditioning ratio whose 95% interval holds 1: "does not depend on the actions"; an
-#: interval above 1 with a ratio below WEAK_RATIO: "depends, weakly".
+#: A conditioning ratio whose 95% interval holds 1 and stays below WEAK_RATIO: "does not
+#: depend on the actions"; one that holds 1 and reaches WEAK_RATIO: "inconclusive" (too few
+#: clips to tell); an interval above 1 with a ratio below WEAK_RATIO: "depends, weakly".
 WEAK_RATIO = 1.05
 #: Median Spearman ρ between the two scorings: below REPEAT_NOISE the ranking is noise, from
 #: REPEAT_FIRM on it repeats.
@@ -85,6 +86,10 @@ def conditioning_verdict(result: dict[str, Any]) -> dict[str, str]:
     if "skipped" in result:
         return {"status": "skipped", "text": f"not measured: {result['skipped']}"}
     low, high = result["ci"]
+    if low <= 1.0 <= high and high >= WEAK_RATIO:
+        return {"status": "inconclusive", "text": "not settled on these clips: the interval "
+                f"holds 1 but also a {high - 1:.0%} rise of the error; measure on more clips "
+                "(vp2 diagnose --clips 64)"}
     if low <= 1.0 <= high:
         return {"status": "blind", "text": "predictions do not depend on the actions: it will "
                 "plan like repeat-last-frame"}

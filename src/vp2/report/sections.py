@@ -254,7 +254,7 @@ h4 .sub{display:inline;font-weight:normal} .score{font-size:1.3em;font-weight:bo
 border-radius:4px;max-width:100%} figure.ok{border-color:#2a9d4b} figure.fail{border-color:#c44}
 img{image-rendering:pixelated;display:block;max-width:100%} img.plan{margin-top:6px}
 .warn{color:#a40} .scatters{display:flex;flex-wrap:wrap;gap:8px} ul.notes{color:#555}
-.diag-blind,.diag-inverted{color:#a40;font-weight:bold} .diag-uses{color:#070}
+.diag-blind,.diag-inverted{color:#a40;font-weight:bold} .diag-inconclusive{color:#a40} .diag-uses{color:#070}
 code{background:#f3f3f3;padding:0 3px} .wide{max-width:100%;overflow-x:auto}
 table.runs{table-layout:auto;width:100%} table.runs code{word-break:break-all}
 figure.chart svg,figure.scatter svg{max-width:100%;height:auto}
