@@ -41,13 +41,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 
 from benchmarks import common  # noqa: E402
+from benchmarks.studies.tabletop_camera_study import TASKS  # noqa: E402
 
-TASKS = (
-    "tabletop/push_large_cube",
-    "tabletop/push_small_cube",
-    "tabletop/push_cylinder",
-    "tabletop/push_sphere",
-)
 SIZE = 64
 
 

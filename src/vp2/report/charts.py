@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import textwrap
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from html import escape
 
 #: Colour of the n-th series (Okabe–Ito, readable by colour-blind readers).
@@ -201,6 +201,43 @@ def _free_label_y(
     return y
 
 
+def _grid(
+    x_ticks: Sequence[float],
+    y_ticks: Sequence[float],
+    px: Callable[[float], float],
+    py: Callable[[float], float],
+    box: tuple[float, float, float, float],
+    x_label: str,
+    y_label: str,
+    y_scale: float = 1.0,
+) -> str:
+    """Grid lines with tick labels, the plot's frame and both axis titles (``box``: left,
+    top, width and height of the plotting area; tick labels of y show ``tick * y_scale``)."""
+    left, top, pw, ph = box
+    parts = []
+    for tick in y_ticks:
+        ty = py(tick)
+        parts.append(
+            f'<line x1="{left}" y1="{ty:.1f}" x2="{left + pw}" y2="{ty:.1f}" stroke="#eee"/>'
+            f'<text x="{left - 6}" y="{ty + 4:.1f}" text-anchor="end">{_fmt(tick * y_scale)}</text>'
+        )
+    for tick in x_ticks:
+        tx = px(tick)
+        parts.append(
+            f'<line x1="{tx:.1f}" y1="{top}" x2="{tx:.1f}" y2="{top + ph}" stroke="#eee"/>'
+            f'<text x="{tx:.1f}" y="{top + ph + 16}" text-anchor="middle">{_fmt(tick)}</text>'
+        )
+    height = top + ph + 44
+    parts.append(
+        f'<rect x="{left}" y="{top}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>'
+        f'<text x="{left + pw / 2:.0f}" y="{height - 8}" text-anchor="middle">'
+        f"{escape(x_label)}</text>"
+        f'<text transform="translate(14,{top + ph / 2:.0f}) rotate(-90)" text-anchor="middle">'
+        f"{escape(y_label)}</text>"
+    )
+    return "".join(parts)
+
+
 def scatter_plot(
     points: Sequence[tuple[str, float, float]],
     *,
@@ -256,27 +293,8 @@ def scatter_plot(
         parts.append(
             f'<text x="4" y="{16 + n * _LINE_HEIGHT}" font-weight="bold">{escape(line)}</text>'
         )
-    for tick in nice_ticks(y_lo, y_hi, 5):
-        if tick > y_hi + 1e-9:
-            continue
-        ty = py(tick)
-        parts.append(
-            f'<line x1="{left}" y1="{ty:.1f}" x2="{left + pw}" y2="{ty:.1f}" stroke="#eee"/>'
-            f'<text x="{left - 6}" y="{ty + 4:.1f}" text-anchor="end">{_fmt(tick * y_scale)}</text>'
-        )
-    for tick in x_ticks:
-        tx = px(tick)
-        parts.append(
-            f'<line x1="{tx:.1f}" y1="{top}" x2="{tx:.1f}" y2="{top + ph}" stroke="#eee"/>'
-            f'<text x="{tx:.1f}" y="{top + ph + 16}" text-anchor="middle">{_fmt(tick)}</text>'
-        )
-    parts.append(
-        f'<rect x="{left}" y="{top}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>'
-        f'<text x="{left + pw / 2:.0f}" y="{height - 8}" text-anchor="middle">'
-        f"{escape(x_label)}</text>"
-        f'<text transform="translate(14,{top + ph / 2:.0f}) rotate(-90)" text-anchor="middle">'
-        f"{escape(y_label)}</text>"
-    )
+    y_ticks = [t for t in nice_ticks(y_lo, y_hi, 5) if t <= y_hi + 1e-9]
+    parts.append(_grid(x_ticks, y_ticks, px, py, (left, top, pw, ph), x_label, y_label, y_scale))
     placed: list[tuple[float, float, float, float]] = []
     for i, (label, x, yv) in enumerate(points):
         if not (math.isfinite(x) and math.isfinite(yv)):
@@ -358,25 +376,7 @@ def line_chart(
         parts.append(
             f'<text x="4" y="{16 + n * _LINE_HEIGHT}" font-weight="bold">{escape(line)}</text>'
         )
-    for tick in y_ticks:
-        ty = py(tick)
-        parts.append(
-            f'<line x1="{left}" y1="{ty:.1f}" x2="{left + pw}" y2="{ty:.1f}" stroke="#eee"/>'
-            f'<text x="{left - 6}" y="{ty + 4:.1f}" text-anchor="end">{_fmt(tick)}</text>'
-        )
-    for tick in x_ticks:
-        tx = px(tick)
-        parts.append(
-            f'<line x1="{tx:.1f}" y1="{top}" x2="{tx:.1f}" y2="{top + ph}" stroke="#eee"/>'
-            f'<text x="{tx:.1f}" y="{top + ph + 16}" text-anchor="middle">{_fmt(tick)}</text>'
-        )
-    parts.append(
-        f'<rect x="{left}" y="{top}" width="{pw}" height="{ph}" fill="none" stroke="#444"/>'
-        f'<text x="{left + pw / 2:.0f}" y="{height - 8}" text-anchor="middle">'
-        f"{escape(x_label)}</text>"
-        f'<text transform="translate(14,{top + ph / 2:.0f}) rotate(-90)" text-anchor="middle">'
-        f"{escape(y_label)}</text>"
-    )
+    parts.append(_grid(x_ticks, y_ticks, px, py, (left, top, pw, ph), x_label, y_label))
     if reference is not None:
         ry = py(reference[0])
         parts.append(
