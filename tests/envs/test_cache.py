@@ -47,3 +47,39 @@ def test_least_recently_used_is_closed_and_close_closes_all(built):
     assert a.closed and c.closed and len(cache) == 0
     with pytest.raises(ValueError, match="size must be >= 1"):
         EnvCache(0)
+
+
+def test_get_or_make_builds_once_per_key_and_evicts_like_get():
+    made = []
+
+    def make(name):
+        def build():
+            made.append(_FakeEnv(name, {}))
+            return made[-1]
+
+        return build
+
+    cache = EnvCache(2)
+    a = cache.get_or_make(("push_red", 64), make("a"))
+    assert cache.get_or_make(("push_red", 64), make("again")) is a and len(made) == 1
+    b = cache.get_or_make(("push_red", None), make("b"))
+    cache.get_or_make(("push_red", 64), make("again"))  # a is the most recently used
+    cache.get_or_make("c", make("c"))
+    assert b.closed and not a.closed and [e.meta for e in made] == ["a", "b", "c"]
+
+
+def test_the_data_stages_release_their_environments(tmp_path):
+    # Suite generation, collection and rendering keep environments per process while they run
+    # and close them at the end: a long-lived process (tests, a notebook) must not hold one
+    # environment per task it ever touched (each reserves hundreds of MB).
+    from vp2.data import collect as collect_module
+    from vp2.data import suite as suite_module
+    from vp2.data.collect import CollectionConfig, collect
+
+    suite_module.generate_suite({"robodesk/open_slide": 1}, workers=1, progress=False)
+    assert len(suite_module._ENVS) == 0
+    config = CollectionConfig(
+        env="robodesk", trajectories_per_stream=1, streams=("robodesk/push_red",), horizon=3, image_size=16
+    )
+    collect(config, tmp_path / "data", workers=1, progress=False)
+    assert len(collect_module._WORKER_ENVS) == 0

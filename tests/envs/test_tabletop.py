@@ -277,3 +277,27 @@ def test_import_does_not_log_the_mink_warning():
         check=True,
     )
     assert "mink" not in out.stdout + out.stderr
+
+
+def test_the_solver_arena_is_small_and_big_enough(env):
+    # robosuite's <size nconmax="5000" njmax="5000"/> reserves a 1.26 GB arena per MjData; a
+    # process holding a few environments then cannot fork (benchmarks/checks/env_memory.py).
+    assert env._model.narena == 16 * 2**20
+    assert env._world.compiled_xml.count("njmax") == 0
+    env.reset()
+    for action in _actions(40, seed=3):
+        env.step(action)
+    # The most a trajectory used, with room to spare (pushes add a handful of contacts).
+    assert 0 < env._data.maxuse_arena < env._model.narena / 20
+    assert env._data.maxuse_con < 100
+
+
+def test_set_arena_size_replaces_the_solver_limits():
+    from vp2.envs._tabletop_world import _set_arena_size
+
+    xml = '<mujoco><size nconmax="5000" njmax="5000" nkey="1"/><worldbody/></mujoco>'
+    out = _set_arena_size(xml, "8M")
+    model = mujoco.MjModel.from_xml_string(out)
+    assert model.narena == 8 * 2**20
+    assert 'nkey="1"' in out and "njmax" not in out
+    assert mujoco.MjModel.from_xml_string(_set_arena_size("<mujoco/>", "4M")).narena == 4 * 2**20

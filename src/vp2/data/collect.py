@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import logging
 import multiprocessing as mp
 import threading
@@ -31,6 +32,7 @@ from tqdm.auto import tqdm
 from vp2.data import storage
 from vp2.data.policies import data_noise_sigma, make_data_env, make_policy, stream_names
 from vp2.envs.base import Env
+from vp2.envs.cache import EnvCache
 from vp2.envs.robodesk import ACTION_REPEAT
 from vp2.utils.executors import Executor, LocalExecutor
 from vp2.utils.io import remove_stale_temporaries, write_json_atomic
@@ -167,8 +169,9 @@ def rollout(
     )
 
 
-# One environment per data stream per worker process, built on first use.
-_WORKER_ENVS: dict[tuple[str, int], Env] = {}
+# One environment per data stream per worker process, built on first use (closed at the end of
+# a collection, for the collections that run in this process).
+_WORKER_ENVS = EnvCache(64)
 
 
 def _collect_chunk(job: tuple[dict[str, Any], dict[str, Any], Any]) -> list[storage.Trajectory]:
@@ -180,12 +183,12 @@ def _collect_chunk(job: tuple[dict[str, Any], dict[str, Any], Any]) -> list[stor
         stream = streams[index % len(streams)]
         stream_index = index // len(streams)
         size = config.image_size if config.render else None
-        key = (stream, size)
-        if key not in _WORKER_ENVS:
-            _WORKER_ENVS[key] = make_data_env(stream, observation_size=size)
+        env = _WORKER_ENVS.get_or_make(
+            (stream, size), functools.partial(make_data_env, stream, observation_size=size)
+        )
         trajectories.append(
             rollout(
-                _WORKER_ENVS[key],
+                env,
                 stream,
                 index,
                 trajectory_seed(config.seed, stream, stream_index),
@@ -334,7 +337,10 @@ def collect(
         env_meta = {"env": config.env, "collection": config_json}
         counter = ChunkProgress(bar, {c["chunk"]: c["count"] for c in todo})
         # Per-trajectory updates where the workers can reach this process (local pools).
-        with counter.listening(progress and isinstance(executor, LocalExecutor)) as queue:
+        with (
+            counter.listening(progress and isinstance(executor, LocalExecutor)) as queue,
+            contextlib.closing(_WORKER_ENVS),
+        ):
             jobs = [(config_json, chunk, queue) for chunk in todo]
             for (_, chunk, _), trajectories in executor.imap_unordered(_collect_chunk, jobs):
                 storage.write_shard(

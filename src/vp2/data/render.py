@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from pathlib import Path
 from typing import Any
@@ -10,12 +11,13 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from vp2.data import storage
-from vp2.envs import make_env_from_metadata
 from vp2.envs.base import Env
+from vp2.envs.cache import EnvCache
 from vp2.utils.executors import Executor, LocalExecutor
 from vp2.utils.io import remove_stale_temporaries, write_json_atomic
 
-_ENVS: dict[tuple[str, int], Env] = {}
+# The environments of this process (closed at the end of a rerender).
+_ENVS = EnvCache(4)
 
 
 def render_states(env: Env, states: np.ndarray, size: int) -> np.ndarray:
@@ -31,10 +33,8 @@ def _render_shard(job: tuple[str, int]) -> list[storage.Trajectory]:
     path, size = job
     out = []
     for traj in storage.read_trajectories(path):
-        key = (traj.env_meta["name"], size)
-        if key not in _ENVS:
-            _ENVS[key] = make_env_from_metadata(traj.env_meta, observation_size=None)
-        out.append(dataclasses.replace(traj, images=render_states(_ENVS[key], traj.states, size)))
+        env = _ENVS.get(traj.env_meta, observation_size=None)
+        out.append(dataclasses.replace(traj, images=render_states(env, traj.states, size)))
     return out
 
 
@@ -88,7 +88,7 @@ def rerender(
     env_meta = {"env": manifest["config"]["env"], "collection": new_manifest["config"]}
     total = sum(c["count"] for c in manifest["chunks"])
     with tqdm(total=total, initial=total - sum(c["count"] for c in todo), unit="traj",
-              desc=f"render {size}px", disable=not progress) as bar:
+              desc=f"render {size}px", disable=not progress) as bar, contextlib.closing(_ENVS):
         jobs = [(str(storage.shard_path(src, c["chunk"])), size) for c in todo]
         for (path, _), trajectories in executor.imap_unordered(_render_shard, jobs):
             chunk = int(Path(path).stem)

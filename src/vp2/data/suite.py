@@ -23,6 +23,7 @@ zip timestamps, so regenerating with the same seeds reproduces the shipped file 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import io
@@ -39,6 +40,7 @@ from tqdm.auto import tqdm
 
 from vp2.envs import ENV_TASKS, TASK_NAMES, TASKS, make_env, split_name
 from vp2.envs.base import Env
+from vp2.envs.cache import EnvCache
 from vp2.spec import NUM_CONTROL_STEPS
 from vp2.utils.executors import Executor, LocalExecutor
 from vp2.utils.io import atomic_path
@@ -244,14 +246,12 @@ def instance_seed(suite_seed: int, task: str, attempt: int) -> int:
     return int(ss.generate_state(1, np.uint32)[0])
 
 
-# One environment per task per worker process.
-_ENVS: dict[str, Env] = {}
+# The environments of the last few tasks, per process (closed when a suite is generated).
+_ENVS = EnvCache(4)
 
 
 def _env(task: str) -> Env:
-    if task not in _ENVS:
-        _ENVS[task] = make_env(task, observation_size=None)
-    return _ENVS[task]
+    return _ENVS.get_or_make(task, lambda: make_env(task, observation_size=None))
 
 
 def generate_instance(task: str, seed: int, index: int = -1) -> TaskInstance | None:
@@ -339,7 +339,10 @@ def generate_suite(
     order = sorted(counts, key=TASK_NAMES.index)
     accepted: dict[str, list[TaskInstance]] = {t: [] for t in order}
     next_attempt = dict.fromkeys(order, 0)
-    with tqdm(total=sum(counts.values()), unit="inst", desc="task suite", disable=not progress) as bar:
+    with (
+        tqdm(total=sum(counts.values()), unit="inst", desc="task suite", disable=not progress) as bar,
+        contextlib.closing(_ENVS),  # the environments this process used (workers=1)
+    ):
         # Rounds: every task still short of instances gets a block of attempts (sized by its
         # shortfall only, never by `workers`, so the result is the same for any pool size).
         while any(len(accepted[t]) < counts[t] for t in order):

@@ -134,6 +134,14 @@ _DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
 # robosuite puts collision geoms in group 0 and IK-target markers in group 2, both of which
 # MuJoCo's default visual options draw; the world moves them to a group nobody draws.
 _HIDDEN_GEOM_GROUP = 5
+# robosuite's base model sizes the constraint solver for 5,000 contacts and 5,000 constraint
+# rows (``<size nconmax="5000" njmax="5000"/>``), which makes every ``MjData`` reserve a
+# 1.26 GB arena; this world uses 19 contacts and 69 rows at most (a 0.08 MB arena). The
+# reservation is virtual, but a process holding a few environments then has one merged
+# anonymous mapping larger than the machine's RAM, and Linux refuses to fork it (ENOMEM).
+# 16 MB is 200 times what a trajectory uses; the dynamics do not depend on it. ``None`` keeps
+# robosuite's sizes (benchmarks/checks/env_memory.py compares the two).
+ARENA_SIZE: str | None = "16M"
 
 
 def _look_at_quat(pos: tuple[float, ...], target: tuple[float, ...]) -> np.ndarray:
@@ -280,6 +288,8 @@ class TabletopWorld(ManipulationEnv):
         # robosuite's last XML processor before compiling: remember the exact MJCF that the
         # physics model is compiled from, so that a render model can be built from it.
         xml = super().edit_model_xml(xml_str)
+        if ARENA_SIZE is not None:
+            xml = _set_arena_size(xml, ARENA_SIZE)
         self.compiled_xml = xml
         return xml
 
@@ -328,6 +338,19 @@ class TabletopWorld(ManipulationEnv):
 #: gripper) and its mount.
 RENDER_MESH_BODIES = ("robot0_", "gripper0_", "fixed_mount0_")
 _RENDER_MODELS: dict[tuple[str, float], mujoco.MjModel] = {}
+
+
+def _set_arena_size(xml: str, memory: str) -> str:
+    """``xml`` with its ``<size>`` element's solver limits replaced by an arena of ``memory``."""
+    root = ET.fromstring(xml)
+    for size in root.iter("size"):
+        for attribute in ("nconmax", "njmax", "memory"):
+            size.attrib.pop(attribute, None)
+    size = root.find("size")
+    if size is None:
+        size = ET.SubElement(root, "size")
+    size.set("memory", memory)
+    return ET.tostring(root, encoding="unicode")
 
 
 def _element(tag: str, **attrib: str) -> ET.Element:
