@@ -31,7 +31,8 @@ def test_list_shows_the_shipped_model(capsys, monkeypatch):
     assert head.split() == ["name", "family", "preset", "env", "params", "action",
                             "conditioning", "metrics", "control"]
     assert row.split() == [SHIPPED, "svg_prime", "m0.25k0.25", "robodesk", "1.65", "M",
-                           "1.60x", "[1.49,", "1.72]", "mse", "robodesk", "3/7", "(43%)"]
+                           "1.60x", "[1.49,", "1.72]", "lpips", "ssim", "psnr", "mse", "robodesk",
+                           "3/7", "(43%)"]
     assert "!" not in out  # its checkpoint matches its card
 
 
@@ -44,7 +45,7 @@ def test_show_prints_the_whole_card(capsys):
     for field in FIELDS:
         if field not in ("name", "family", "checkpoint", "sha256"):
             assert f"\n{field}:" in out, field
-    assert "  fvd: not measured" in out and "  mse: 0.0057" in out
+    assert "  fvd: not measured" in out and "  lpips: 0.0463" in out and "  mse: 0.0054" in out
     assert "--clips 128 --samples 3" in out and "vp2 main --out outputs/main-v3" in out
     code, out, _ = _vp2(capsys, "zoo", "show", SHIPPED, "--json")
     assert json.loads(out) == json.loads((get_card(SHIPPED).directory / "card.json").read_text())
