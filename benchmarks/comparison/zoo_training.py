@@ -302,7 +302,7 @@ def run(s: Settings) -> list[dict[str, Any]]:
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    p = common.argument_parser(__name__, __doc__ or "")
+    p = common.argument_parser(__spec__.name, __doc__ or "")
     p.add_argument("--data", type=Path, default=Path("data/robodesk-20x-64px"))
     p.add_argument("--families", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
     p.add_argument(
@@ -389,7 +389,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         publish(s)
         print((s.out / "curve.md").read_text())
         return
-    common.print_header(__name__, device_name(s.device))
+    common.print_header(__spec__.name, device_name(s.device))
     print(f"vp2 {vp2.__version__}: {len(s.families)} families, rounds {list(s.levels)} min")
     run(s)
 

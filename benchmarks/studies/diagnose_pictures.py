@@ -90,12 +90,12 @@ def _frame(x: torch.Tensor) -> np.ndarray:
 
 def conditioning_svg(good: dict[str, Any], bad: dict[str, Any], labels: Sequence[str]) -> str:
     """The strip picture: truth, then each model with true and with shuffled actions."""
-    rows = [("true future", None, good["truth"])]
+    rows = [(("true future",), None, good["truth"])]
     for label, pred in zip(labels, (good, bad), strict=True):
         for name, text in (("true", "its true actions"), ("shuffled", "another clip's actions")):
             mse = float((pred[name] - good["truth"]).square().mean())
-            rows.append((f"{label}, {text}", mse, pred[name]))
-    gap, left, top = 4, 250, 24
+            rows.append(((label, text), mse, pred[name]))
+    gap, left, top = 4, 200, 24
     width = left + (1 + len(SHOWN_FUTURE)) * (FRAME_PX + gap)
     height = top + len(rows) * (FRAME_PX + gap)
     grid = np.full((len(rows) * (FRAME_PX + gap), (1 + len(SHOWN_FUTURE)) * (FRAME_PX + gap), 3),
@@ -116,11 +116,12 @@ def conditioning_svg(good: dict[str, Any], bad: dict[str, Any], labels: Sequence
     for col, head in enumerate(heads):
         x = left + col * (FRAME_PX + gap) + FRAME_PX / 2
         parts.append(f'<text x="{x}" y="16" text-anchor="middle">{html.escape(head)}</text>')
-    for r, (text, mse, _) in enumerate(rows):
-        y = top + r * (FRAME_PX + gap) + FRAME_PX / 2
-        parts.append(f'<text x="8" y="{y - 4}">{html.escape(text)}</text>')
+    for r, (lines, mse, _) in enumerate(rows):
+        y = top + r * (FRAME_PX + gap) + FRAME_PX / 2 - 8 * len(lines)
+        for k, line in enumerate(lines):
+            parts.append(f'<text x="8" y="{y + 16 * k}">{html.escape(line)}</text>')
         if mse is not None:
-            parts.append(f'<text x="8" y="{y + 14}" fill="#555">MSE {mse:.4f}</text>')
+            parts.append(f'<text x="8" y="{y + 16 * len(lines)}" fill="#555">MSE {mse:.4f}</text>')
     parts.append("</svg>")
     return "\n".join(parts)
 
@@ -150,9 +151,9 @@ PANELS = (
 
 def measures_svg(values: Sequence[dict[str, list[float]]], labels: Sequence[str]) -> str:
     """Strip plots, one panel per measure, one row of dots per model."""
-    left, right, width, row_h, panel_gap = 170, 20, 620, 26, 46
+    left, right, width, row_h, panel_gap = 190, 110, 720, 26, 40
     plot_w = width - left - right
-    panel_h = len(labels) * row_h + 34
+    panel_h = len(labels) * row_h + 50
     height = len(PANELS) * (panel_h + panel_gap)
     parts = [
         f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
@@ -162,7 +163,7 @@ def measures_svg(values: Sequence[dict[str, list[float]]], labels: Sequence[str]
     for p, (key, title, threshold, note) in enumerate(PANELS):
         y0 = p * (panel_h + panel_gap) + 18
         parts.append(f'<text x="8" y="{y0}" font-weight="bold">{html.escape(title)}</text>')
-        top, bottom = y0 + 10, y0 + 10 + len(labels) * row_h
+        top, bottom = y0 + 26, y0 + 26 + len(labels) * row_h
         parts.append(f'<rect x="{left}" y="{top}" width="{plot_w}" height="{bottom - top}" '
                      f'fill="none" stroke="#999"/>')  # fmt: skip
         for tick in (0, 0.25, 0.5, 0.75, 1.0):
@@ -178,7 +179,7 @@ def measures_svg(values: Sequence[dict[str, list[float]]], labels: Sequence[str]
             vals = values[m][key]
             summary = f"median {np.median(vals):.2f}" if vals else "undefined"
             parts.append(f'<text x="8" y="{y + 4}">{html.escape(label)}</text>')
-            parts.append(f'<text x="{left - 8}" y="{y + 4}" text-anchor="end" fill="#555">'
+            parts.append(f'<text x="{left + plot_w + 10}" y="{y + 4}" fill="#555">'
                          f"{summary}</text>")  # fmt: skip
             jitter = np.random.default_rng(m).uniform(-0.3, 0.3, len(vals)) * row_h
             for v, j in zip(vals, jitter, strict=True):

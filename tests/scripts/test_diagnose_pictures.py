@@ -35,7 +35,7 @@ def test_conditioning_svg_shows_every_row_with_its_error_against_the_truth():
     assert svg.count("MSE ") == 4
     # (0.1)², (0.3)², (0.2)² twice, printed with 4 decimals
     assert re.findall(r"MSE (\d\.\d{4})", svg) == ["0.0100", "0.0900", "0.0400", "0.0400"]
-    assert "good, another clip&#x27;s actions" in svg and "true future" in svg
+    assert ">another clip&#x27;s actions<" in svg and ">good<" in svg and "true future" in svg
     data = re.search(r'href="data:image/png;base64,([^"]+)"', svg).group(1)
     image = np.asarray(Image.open(io.BytesIO(base64.b64decode(data))))
     gap = 4
