@@ -173,3 +173,27 @@ def test_the_cards_training_command_is_a_vp2_train_command_line(overrides):
     assert args.perceptual_weight == overrides.get("perceptual_weight")
     assert args.tasks == overrides.get("tasks", args.tasks) and str(args.out) == "runs/x"
     assert args.amp is overrides.get("amp")
+
+
+def test_add_fills_control_and_metrics_from_their_files(capsys, tmp_path):
+    from tests.report.test_cards import _trial, make_run
+
+    run = make_run(tmp_path / "run", [_trial("robodesk/push_red", 0, 0, True),
+                                      _trial("robodesk/push_red", 1, 0, False)])
+    metrics = tmp_path / "metrics.json"
+    metrics.write_text(json.dumps({"metrics": {"ssim": 0.8, "mse": 0.01}, "model": {"spec": "m"},
+                                   "dataset": "d", "num_clips": 8, "seed": 0,
+                                   "settings": {"fvd": False, "lpips_nets": []}}))
+    zoo = tmp_path / "zoo"
+    code, out, err = _vp2(capsys, "zoo", "add", str(make_checkpoint(tmp_path / "m.pt")), "--name",
+                          "t", "--control", str(run), "--metrics", str(metrics), "--zoo", str(zoo))
+    assert code == 0, err
+    assert "not measured (null): action_conditioning, metrics.fvd, metrics.lpips, metrics.psnr\n" in out
+    card = get_card("t", zoo)
+    assert card.control["robodesk"]["successes"] == 1 and card.control["robodesk"]["trials"] == 2
+    assert (card.metrics["ssim"], card.metrics["lpips"], card.metrics["fvd"]) == (0.8, None, None)
+    given = tmp_path / "given.json"
+    given.write_text(json.dumps({"metrics": {"ssim": 0.5}}))
+    code, _, err = _vp2(capsys, "zoo", "add", str(tmp_path / "m.pt"), "--name", "u", "--metrics",
+                        str(metrics), "--card-from", str(given), "--zoo", str(zoo))
+    assert code == 2 and "--metrics and --card-from both give the card's metrics" in err

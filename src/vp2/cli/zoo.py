@@ -33,13 +33,20 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         "inference-only export) and NAME/card.json. The card's family, preset, parameters, "
         "dataset, steps and training command come from the checkpoint; the measured fields "
         "(action_conditioning, metrics, control) and budget, device, notes from --card-from, "
-        "else null (listed as not measured).",
+        "control and metrics also from --control / --metrics, else null (listed as not "
+        "measured).",
     )
     add.add_argument("checkpoint", type=Path, help="checkpoint file or training run directory")
     add.add_argument("--name", required=True, help="the entry's name (--model zoo:NAME)")
     add.add_argument("--card-from", type=Path, metavar="JSON",
                      help="card fields to add: a JSON mapping (e.g. a card of `vp2 zoo show "
                      "NAME --json` with the measured fields filled)")
+    add.add_argument("--control", nargs="+", type=Path, metavar="RUN_DIR",
+                     help="fill the card's control from these `vp2 run` directories (one row "
+                     "per environment: successes over their finished trials, the protocol, the "
+                     "commands)")
+    add.add_argument("--metrics", type=Path, metavar="FILE",
+                     help="fill the card's metrics from this `vp2 metrics` result")
     add.add_argument("--float32", action="store_true",
                      help="keep float32 weights (default: float16, half the size)")
     add.add_argument("--force", action="store_true", help="replace an entry of that name")
@@ -73,6 +80,7 @@ def _add(args: argparse.Namespace) -> None:
             raise ValueError(f"--card-from {args.card_from}: cannot read it as JSON ({exc})") from None
         if not isinstance(given, dict):
             raise ValueError(f"--card-from {args.card_from}: expected a JSON mapping of card fields")
+    given = _measured_from_files(dict(given or {}), args.control, args.metrics)
     card = add_to_zoo(
         args.checkpoint, args.name, given, args.zoo, force=args.force,
         write=lambda src, dst: export_checkpoint(src, dst, half=not args.float32),
@@ -87,6 +95,22 @@ def _add(args: argparse.Namespace) -> None:
     if missing or unrecorded:
         print(f"fill them: `vp2 zoo show {card.name} --json` gives the card; add the fields and "
               f"run this command again with --card-from FILE --force")
+
+
+def _measured_from_files(
+    given: dict[str, Any], control: list[Path] | None, metrics: Path | None
+) -> dict[str, Any]:
+    """``given`` with ``control`` / ``metrics`` read from run directories / a metrics file."""
+    from vp2.report.cards import control_sections, metrics_section
+
+    for flag, field, value in (("--control", "control", control), ("--metrics", "metrics", metrics)):
+        if value is not None and given.get(field) is not None:
+            raise ValueError(f"{flag} and --card-from both give the card's {field}; keep one")
+    if control is not None:
+        given["control"] = control_sections(control)
+    if metrics is not None:
+        given["metrics"] = metrics_section(metrics)
+    return given
 
 
 def _params(n: int) -> str:
