@@ -301,6 +301,49 @@ def run(s: Settings) -> list[dict[str, Any]]:
     return done
 
 
+def card_fields(record: dict[str, Any], command: str) -> dict[str, Any]:
+    """The zoo card fields a round's snapshot has from its training and its conditioning
+    measure (``vp2 zoo add SNAPSHOT --card-from`` takes them; ``--control``/``--metrics`` the
+    rest): budget, device, dataset commands, ``action_conditioning``, ``rebuild``, notes."""
+    c, moving = record["conditioning"], record["conditioning_moving"]
+    data, family, level = record["settings"]["data"], record["family"], record["level_minutes"]
+    date = record["date"][:10]
+    default = {"data/robodesk-20x-64px": "robodesk", "data/tabletop-100x-64px": "tabletop"}
+    clock = "core" if record["settings"]["clock"] == "cpu" else "wall"
+    return {
+        "dataset": {"made_with": [f"vp2 collect {default[data]}"] if data in default else None},
+        "budget": {
+            "wall_minutes": None if clock == "core" else round(record["train_minutes"], 1),
+            "core_minutes": round(record["train_minutes"], 1) if clock == "core" else None,
+            "cores": "one CPU core (the process's CPU time, one torch thread)"
+            if clock == "core" else None,
+            "date": date,
+            "note": f"round {_label(level)} of the zoo training: every family gets the same "
+            f"{clock}-minutes; batch {record['settings']['batch_size']}, the family's own "
+            "learning rate",
+        },  # fmt: skip
+        "device": record["device"],
+        "action_conditioning": {
+            "ratio": round(c["ratio"], 3),
+            "interval": [round(c["ci"][0], 3), round(c["ci"][1], 3)],
+            "clips": c["clips"],
+            "samples": record["settings"]["samples"],
+            "changing_pixels": {"ratio": round(moving["ratio"], 3),
+                                "interval": [round(v, 3) for v in moving["ci"]]},
+            "true_wins": f"{c['wins']} of {c['clips']} clips (sign test p = {c['sign_p']:.2g})",
+            "dataset": f"{data} (held-out clips)",
+            "date": date,
+            "command": command,
+            "note": "measured by the zoo training after the round (vp2.benchmark."
+            "diagnose_measures, as vp2 diagnose does); MSE per pixel with the true actions "
+            f"{c['mse_true']:.5f}, with another clip's {c['mse_shuffled']:.5f}",
+        },  # fmt: skip
+        "rebuild": [*(["vp2 collect " + default[data]] if data in default else []), command],
+        "notes": f"{family} after {_label(level)} of the zoo training; the snapshot "
+        f"snapshots/{family}-{_label(level)}.pt of the command's output folder",
+    }
+
+
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p = common.argument_parser(__spec__.name, __doc__ or "")
     p.add_argument("--data", type=Path, default=Path("data/robodesk-20x-64px"))
@@ -338,6 +381,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--publish-only",
         action="store_true",
         help="rewrite curve.md and curve.svg from the points measured; train nothing",
+    )
+    p.add_argument(
+        "--card",
+        metavar="LABEL",
+        help="write the zoo card fields of snapshot LABEL (e.g. svg_prime-30min) to "
+        "OUT/cards/LABEL.json, for `vp2 zoo add SNAPSHOT --card-from`; train nothing",
     )
     p.add_argument("--smoke", action="store_true", help="tiny settings for the test")
     return p.parse_args(argv)
@@ -382,10 +431,20 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str] | None) -> 
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
     s = settings_from_args(args, argv)
+    saved = s.out / "zoo_training.json"
+    if (args.publish_only or args.card) and saved.is_file():
+        # the page and the cards name the command that trained, not this one
+        s = dataclasses.replace(s, command=json.loads(saved.read_text())["command"])
+    if args.card:
+        path = s.out / "curve" / f"{args.card}.json"
+        if not path.is_file():
+            raise SystemExit(f"--card {args.card}: no {path}; the round has not been measured")
+        out = s.out / "cards" / f"{args.card}.json"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(out, card_fields(json.loads(path.read_text()), s.command))
+        print(out)
+        return
     if args.publish_only:
-        saved = s.out / "zoo_training.json"
-        if saved.is_file():  # the page names the command that trained, not this one
-            s = dataclasses.replace(s, command=json.loads(saved.read_text())["command"])
         publish(s)
         print((s.out / "curve.md").read_text())
         return

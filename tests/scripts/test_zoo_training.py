@@ -100,3 +100,26 @@ def test_rounds_train_every_family_in_turn_and_resume(tmp_path):
     assert (out / "curve.svg").read_text() == svg
     table = (out / "curve.md").read_text()
     assert sum(line.startswith(("| svg_prime |", "| fitvid |")) for line in table.splitlines()) == 4
+
+
+def test_card_fields_of_a_round_make_a_valid_zoo_card(tmp_path):
+    from benchmarks.comparison.zoo_training import card_fields
+
+    from tests.models.test_zoo import make_checkpoint
+    from vp2.models.zoo import add_to_zoo
+
+    stats = {"ratio": 1.3204, "ci": [1.1985, 1.4459], "clips": 64, "wins": 58, "ties": 0,
+             "sign_p": 9.03e-12, "mse_true": 0.006424, "mse_shuffled": 0.008482}
+    record = {"conditioning": stats, "conditioning_moving": {**stats, "ratio": 1.35},
+              "family": "struct_vrnn", "level_minutes": 30.0, "date": "2026-11-26T10:31:43+00:00",
+              "device": "cpu (test)", "train_minutes": 30.016, "step": 1514,
+              "settings": {"data": "data/robodesk-20x-64px", "clock": "cpu", "batch_size": 8,
+                           "samples": 2}}  # fmt: skip
+    fields = card_fields(record, "python -m benchmarks.comparison.zoo_training --out o")
+    assert fields["budget"]["core_minutes"] == 30.0 and fields["budget"]["wall_minutes"] is None
+    assert fields["rebuild"][0] == "vp2 collect robodesk"
+    card = add_to_zoo(make_checkpoint(tmp_path / "m.pt"), "t", fields, tmp_path / "zoo")
+    assert card.action_conditioning["ratio"] == 1.32
+    assert card.action_conditioning["interval"] == [1.198, 1.446]
+    assert card.action_conditioning["true_wins"] == "58 of 64 clips (sign test p = 9e-12)"
+    assert card.not_measured() == ["metrics", "control"] and card.device == "cpu (test)"
