@@ -27,13 +27,18 @@ def test_list_shows_the_shipped_model(capsys, monkeypatch):
     monkeypatch.delenv("VP2_ZOO_DIR", raising=False)
     code, out, _ = _vp2(capsys, "zoo", "list")
     assert code == 0
-    head, row = out.splitlines()[:2]
+    head = out.splitlines()[0]
+    (row,) = [line for line in out.splitlines() if line.startswith(SHIPPED + " ")]
     assert head.split() == ["name", "family", "preset", "env", "params", "action",
                             "conditioning", "metrics", "control"]
     assert row.split() == [SHIPPED, "svg_prime", "m0.25k0.25", "robodesk", "1.65", "M",
                            "1.60x", "[1.49,", "1.72]", "lpips", "ssim", "psnr", "mse", "robodesk",
                            "3/7", "(43%)"]
-    assert "!" not in out  # its checkpoint matches its card
+    assert "!" not in out  # every entry's checkpoint matches its card
+    # The zoo training's SVG' after 30 core-minutes, with its card from the files that measured it.
+    (row,) = [line for line in out.splitlines() if line.startswith("svg_prime-robodesk-30min ")]
+    assert row.split()[6:] == ["1.32x", "[1.20,", "1.45]", "lpips", "ssim", "psnr", "mse",
+                               "robodesk", "6/14", "(43%)"]
 
 
 def test_show_prints_the_whole_card(capsys):
@@ -54,7 +59,7 @@ def test_show_prints_the_whole_card(capsys):
 def test_unknown_names_are_errors_that_list_the_zoo(capsys, tmp_path):
     code, _, err = _vp2(capsys, "zoo", "show", "nope")
     assert code == 2 and "vp2 zoo: error: no model 'nope' in the zoo at" in err
-    assert f"known: {SHIPPED}" in err
+    assert f"known: svg_prime-robodesk-30min, {SHIPPED};" in err
     code, _, err = _vp2(capsys, "run", "--model", "zoo:nope", "--out", str(tmp_path / "r"),
                         "--no-progress")
     assert code == 2 and "vp2 run: error: model 'zoo:nope': no model 'nope'" in err
