@@ -54,7 +54,7 @@ from vp2.benchmark.diagnose_measures import (
     probe_instance,
     ratio_statistics,
 )
-from vp2.benchmark.diagnose_score import NO_PREDICTOR, load_predictor, predicted_score
+from vp2.benchmark.diagnose_score import load_predictor, predicted_score
 from vp2.benchmark.diagnose_verdicts import (
     conditioning_verdict,
     format_report,
@@ -72,7 +72,6 @@ __all__ = [
     "FORMAT",
     "PRECHECK_CLIPS",
     "PRECHECK_FILE",
-    "PREDICTED_SCORE_REASON",
     "REPORT_FILE",
     "DiagnoseConfig",
     "checkpoint_env",
@@ -88,8 +87,6 @@ __all__ = [
 FORMAT = "vp2-diagnose/1"
 #: The file :func:`write_report` writes inside a directory.
 REPORT_FILE = "diagnose.json"
-#: Why ``predicted_control_score`` is ``None`` while vp2 ships no predictor.
-PREDICTED_SCORE_REASON = NO_PREDICTOR
 #: Held-out clips of the run's pre-check (:func:`precheck_model`), one sampling seed.
 PRECHECK_CLIPS = 16
 #: The file of a run directory that holds its pre-check's measures (the report reads it).
@@ -300,8 +297,6 @@ def diagnose_model(config: DiagnoseConfig) -> dict[str, Any]:
         "settings": {**dataclasses.asdict(config), "device": str(device)},
         "action_conditioning": conditioning,
         "planning": {"instances": rows, **summarize_planning(rows, config.num_samples)},
-        "predicted_control_score": None,
-        "predicted_control_score_reason": PREDICTED_SCORE_REASON,
     }
     score, reason = predicted_score(report, load_predictor())
     report["predicted_control_score"], report["predicted_control_score_reason"] = score, reason

@@ -35,7 +35,8 @@ FEATURES: tuple[str, ...] = (
     "steering",  # 1 - exp(-median gamma * spread): 0 = flat scores, MPPI executes the mean
 )
 #: Why there is no score when vp2 ships no predictor.
-NO_PREDICTOR = "not yet fitted: needs the zoo's control runs"
+NO_PREDICTOR = ("no predictor asset (vp2/assets/diagnose_predictor.json); fit one with "
+                "python -m benchmarks.studies.diagnose_validation --write-asset")
 #: Ridge penalty on the standardised weights (not on the intercept).
 RIDGE = 1.0
 
