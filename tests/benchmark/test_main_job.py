@@ -38,15 +38,29 @@ def test_main_job_runs_each_agent_and_writes_the_table(tmp_path, monkeypatch):
     assert "(0 trials run, 1 done earlier)" in path.read_text()
 
 
-def test_shipped_model_runs_only_on_its_env(tmp_path, monkeypatch):
-    monkeypatch.setattr(main_job, "shipped_model_spec", lambda: "svg_prime:/x.pt")
+def test_shipped_models_run_only_on_their_envs(tmp_path, monkeypatch):
+    assert main_job.shipped_model_envs() == ("robodesk", "tabletop")  # both are in the package
+    runs = main_job._run_configs(MainJobConfig(agents=("model",)))  # noqa: SLF001
+    assert runs["svg_prime"].tasks == ("robodesk", "tabletop")
+    assert runs["svg_prime"].model == "vp2.benchmark.main_job:shipped_model"
+    assert runs["svg_prime"].planner.num_samples == 50
+    monkeypatch.setattr(main_job, "shipped_model_envs", lambda: ("robodesk",))
     runs = main_job._run_configs(  # noqa: SLF001
         _config(tmp_path, agents=("model",), tasks=("tabletop",)))
-    assert runs == {}  # no RoboDesk task selected
+    assert runs == {}  # no task of an environment with a shipped model
     runs = main_job._run_configs(  # noqa: SLF001
         _config(tmp_path, agents=("model", "random"), tasks=("robodesk/push_red", "tabletop")))
     assert runs["svg_prime"].tasks == ("robodesk/push_red",)
-    assert runs["svg_prime"].planner.num_samples == 50
     assert runs["random actions"].tasks == ("robodesk/push_red", "tabletop")
-    runs = main_job._run_configs(MainJobConfig(agents=("model",)))  # noqa: SLF001
-    assert runs["svg_prime"].tasks == ("robodesk",)
+
+
+def test_the_model_agent_plans_each_environment_with_its_own_checkpoint(tmp_path):
+    for env, action_dim in (("robodesk", 5), ("tabletop", 4)):
+        model = main_job.shipped_model(env, action_dim)
+        assert type(model).__name__ == "SVGPrime" and model.action_dim == action_dim
+    table, _ = run_main_job(_config(tmp_path, agents=("model",)), gallery=False)
+    (record,) = read_trials(tmp_path / "main" / "model")
+    assert (record["task"], record["error"]) == ("tabletop/push_sphere", None)
+    assert record["model"]["spec"] == "vp2.benchmark.main_job:shipped_model"
+    assert record["model"]["name"] == "svg_prime" and len(record["success_steps"]) == 3
+    assert "| task | svg_prime |" in table

@@ -3,7 +3,8 @@
 It runs the benchmark (:func:`vp2.benchmark.run_benchmark`) for each of a few agents on the
 first instance(s) of every task category of the shipped suite:
 
-* the shipped small model (:data:`SHIPPED_MODEL`, if its checkpoint is in the package),
+* the shipped small models (:data:`SHIPPED_MODELS`, one per environment whose checkpoint is in
+  the package, as one agent: :func:`shipped_model`),
 * the repeat-last-frame baseline (a lower bound: every plan gets the same cost),
 * the random-action agent (a lower bound that ignores observations),
 
@@ -26,6 +27,7 @@ import time
 from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 from vp2 import spec
 from vp2.benchmark.config import RunConfig
@@ -43,19 +45,48 @@ from vp2.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
 
-#: The shipped small model: ``(registered name, checkpoint file in vp2/assets/models)``.
-SHIPPED_MODEL = ("svg_prime", "svg_prime_tiny_robodesk.pt")
-#: The environment the shipped model was trained on (it runs only on that env's tasks).
-SHIPPED_MODEL_ENV = "robodesk"
+#: The shipped small models, per environment: ``(registered name, checkpoint file in
+#: vp2/assets/models)``. Each plans only in the environment it was trained on.
+SHIPPED_MODELS: dict[str, tuple[str, str]] = {
+    "robodesk": ("svg_prime", "svg_prime_tiny_robodesk.pt"),
+    "tabletop": ("svg_prime", "svg_prime_tiny_tabletop.pt"),
+}
+#: The model spec of the main job's model agent: :func:`shipped_model`, which builds the
+#: shipped checkpoint of whichever environment a trial is in.
+SHIPPED_MODEL_SPEC = "vp2.benchmark.main_job:shipped_model"
 #: The agents the main job can run (all by default).
 AGENTS: tuple[str, ...] = ("model", "repeat_last_frame", "random")
 
 
-def shipped_model_spec() -> str | None:
-    """``NAME:CHECKPOINT`` of the shipped small model, or ``None`` if it is not installed."""
-    name, file = SHIPPED_MODEL
-    path = Path(str(resources.files("vp2") / "assets" / "models" / file))
-    return f"{name}:{path}" if path.is_file() else None
+def shipped_checkpoint(env: str) -> Path | None:
+    """The shipped small model's checkpoint for ``env``, or ``None`` if it is not installed."""
+    if env not in SHIPPED_MODELS:
+        return None
+    path = Path(str(resources.files("vp2") / "assets" / "models" / SHIPPED_MODELS[env][1]))
+    return path if path.is_file() else None
+
+
+def shipped_model_envs() -> tuple[str, ...]:
+    """The environments with an installed shipped model."""
+    return tuple(env for env in SHIPPED_MODELS if shipped_checkpoint(env) is not None)
+
+
+def shipped_model(env: str, action_dim: int, device: str = "cpu") -> Any:
+    """The shipped small model of ``env`` (``NAME:CHECKPOINT`` of :data:`SHIPPED_MODELS`).
+
+    Raises:
+        ValueError: no shipped model for ``env`` is installed.
+    """
+    import torch
+
+    from vp2.benchmark.model_spec import ModelSpec, resolve_model
+
+    path = shipped_checkpoint(env)
+    if path is None:
+        raise ValueError(f"no shipped model for {env!r} in vp2/assets/models (shipped for: "
+                         f"{', '.join(shipped_model_envs()) or 'none'})")
+    spec = ModelSpec.parse(f"{SHIPPED_MODELS[env][0]}:{path}")
+    return resolve_model(spec, {}, env=env, action_dim=action_dim, device=torch.device(device))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,18 +126,17 @@ def _run_configs(config: MainJobConfig) -> dict[str, RunConfig]:
     out = Path(config.out)
     runs: dict[str, RunConfig] = {}
     if "model" in config.agents:
-        spec = shipped_model_spec()
-        env = SHIPPED_MODEL_ENV
-        model_tasks = tuple(t for t in config.tasks if t == env or t.startswith(env + "/"))
-        if spec is None:
-            log.warning("the shipped model is not installed (vp2/assets/models); skipping it")
+        envs = shipped_model_envs()
+        model_tasks = tuple(t for t in config.tasks if t.split("/")[0] in envs)
+        if not envs:
+            log.warning("no shipped model is installed (vp2/assets/models); skipping it")
         elif config.tasks and not model_tasks:
-            log.info("no %s task selected: the shipped model is not run", env)
+            log.info("no %s task selected: the shipped model is not run", " or ".join(envs))
         else:
-            runs[SHIPPED_MODEL[0]] = RunConfig(
-                model=spec, out=str(out / "model"),
+            runs[SHIPPED_MODELS[envs[0]][0]] = RunConfig(
+                model=SHIPPED_MODEL_SPEC, out=str(out / "model"),
                 planner=PlannerConfig(num_samples=config.model_samples),
-                **{**common, "tasks": model_tasks or (env,)})
+                **{**common, "tasks": model_tasks or envs})
     if "repeat_last_frame" in config.agents:
         runs["repeat_last_frame"] = RunConfig(
             model="repeat_last_frame", out=str(out / "repeat_last_frame"), **common)

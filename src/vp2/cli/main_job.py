@@ -11,8 +11,8 @@ from vp2.cli._fields import NOT_A_FLAG, Flag, add_flags, build
 NAME = "main"
 HELP = "the README's main job: a small evaluation on the defaults"
 DESCRIPTION = (
-    "Evaluates the shipped small model and the trivial baselines on the first instance of "
-    "every task category (vp2.benchmark.main_job). Re-running resumes."
+    "Evaluates the shipped small models (one per environment) and the trivial baselines on "
+    "the first instance of every task category (vp2.benchmark.main_job). Re-running resumes."
 )
 
 
