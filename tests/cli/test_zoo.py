@@ -39,6 +39,11 @@ def test_list_shows_the_shipped_model(capsys, monkeypatch):
     (row,) = [line for line in out.splitlines() if line.startswith("svg_prime-robodesk-30min ")]
     assert row.split()[6:] == ["1.32x", "[1.20,", "1.45]", "lpips", "ssim", "psnr", "mse",
                                "robodesk", "6/14", "(43%)"]
+    # The shipped tabletop model: its card names vp2 main's checkpoint file.
+    (row,) = [line for line in out.splitlines() if line.startswith("svg_prime-tiny-tabletop ")]
+    assert row.split()[3:] == ["tabletop", "1.65", "M", "1.63x", "[1.50,", "1.76]", "lpips",
+                               "ssim", "psnr", "mse", "tabletop", "0/8", "(0%)"]
+    assert get_card("svg_prime-tiny-tabletop").checkpoint_path.name == "svg_prime_tiny_tabletop.pt"
 
 
 def test_show_prints_the_whole_card(capsys):
@@ -59,7 +64,7 @@ def test_show_prints_the_whole_card(capsys):
 def test_unknown_names_are_errors_that_list_the_zoo(capsys, tmp_path):
     code, _, err = _vp2(capsys, "zoo", "show", "nope")
     assert code == 2 and "vp2 zoo: error: no model 'nope' in the zoo at" in err
-    assert f"known: svg_prime-robodesk-30min, {SHIPPED};" in err
+    assert f"known: svg_prime-robodesk-30min, {SHIPPED}, svg_prime-tiny-tabletop;" in err
     code, _, err = _vp2(capsys, "run", "--model", "zoo:nope", "--out", str(tmp_path / "r"),
                         "--no-progress")
     assert code == 2 and "vp2 run: error: model 'zoo:nope': no model 'nope'" in err
