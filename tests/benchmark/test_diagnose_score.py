@@ -166,3 +166,21 @@ def test_the_shipped_predictor_orders_a_planning_model_above_a_blind_one():
     good, reason = predicted_score(uses, asset)
     bad, _ = predicted_score(blind, asset)
     assert good > 0.5 > 0.05 > bad and "fitted on 7 models (held-out Spearman +0.85" in reason
+
+
+def test_the_shipped_predictor_rebuilds_from_its_committed_evidence(tmp_path, monkeypatch):
+    # results/diagnose holds the reports, metrics and compact control records the shipped
+    # predictor was fitted on (benchmarks/studies/diagnose_models.json points there).
+    import shutil
+    from pathlib import Path
+
+    from vp2.benchmark.diagnose_score import load_predictor
+
+    root = Path(__file__).resolve().parents[2]
+    shutil.copytree(root / "results" / "diagnose" / "reports", tmp_path / "out" / "reports")
+    monkeypatch.chdir(root)  # the model list names its files from the repository root
+    dv.main(["--models", "benchmarks/studies/diagnose_models.json", "--out",
+             str(tmp_path / "out"), "--write-asset", "--asset", str(tmp_path / "asset.json")])
+    rebuilt = json.loads((tmp_path / "asset.json").read_text())
+    assert rebuilt["predictors"] == load_predictor()["predictors"]
+    assert rebuilt["models"]["robodesk"][0] == "shipped_svg_prime"
