@@ -14,33 +14,17 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from vp2.benchmark.results import is_ok, read_trials
-from vp2.benchmark.run_dir import CONFIG_FILE
+from vp2.benchmark.run_dir import CONFIG_FILE, RunDir
+from vp2.benchmark.ship_oracle import run_command
 from vp2.data.suite import SUITE_FORMAT
 
 
-def _run_config(run_dir: Path) -> dict[str, Any]:
-    path = run_dir / CONFIG_FILE
-    if not path.is_file():
+def _run_settings(run_dir: Path) -> dict[str, Any]:
+    run = RunDir(run_dir)
+    if not run.config_file.is_file():
         raise ValueError(f"--control {run_dir}: no {CONFIG_FILE}; give the directory of a vp2 run")
-    return (yaml.safe_load(path.read_text()) or {}).get("config", {})
-
-
-def _run_command(config: dict[str, Any]) -> str:
-    """The `vp2 run` command line of a run's config (its protocol flags)."""
-    planner = config.get("planner") or {}
-    args = ["vp2", "run", "--model", str(config.get("model")), "--tasks", *config.get("tasks", [])]
-    if config.get("num_instances") is not None:
-        args += ["--num-instances", str(config["num_instances"])]
-    args += ["--seeds", *map(str, config.get("seeds", []))]
-    if planner.get("num_samples") is not None:
-        args += ["--num-samples", str(planner["num_samples"])]
-    if config.get("stop_on_success"):
-        args.append("--stop-on-success")
-    args += ["--out", str(config.get("out"))]
-    return shlex.join(args)
+    return run.settings()
 
 
 def control_section(run_dirs: Sequence[str | os.PathLike[str]], env: str) -> dict[str, Any]:
@@ -56,9 +40,9 @@ def control_section(run_dirs: Sequence[str | os.PathLike[str]], env: str) -> dic
     records: dict[tuple[str, int, int], dict[str, Any]] = {}
     commands, samples, steps, suites = [], set(), set(), set()
     for run_dir in map(Path, run_dirs):
-        config = _run_config(run_dir)
-        commands.append(_run_command(config))
-        suites.add(config.get("suite") or SUITE_FORMAT)
+        settings = _run_settings(run_dir)
+        commands.append(run_command(settings, run_dir))
+        suites.add(settings.get("suite") or SUITE_FORMAT)
         for record in read_trials(run_dir):
             if str(record.get("task", "")).startswith(f"{env}/") and is_ok(record):
                 records[(record["task"], int(record["instance"]), int(record["seed"]))] = record
