@@ -53,7 +53,9 @@ from benchmarks import common
 from benchmarks.comparison.model_comparison import FAMILIES, STEP_CAP, device_name, done_record
 from vp2.benchmark.diagnose_measures import conditioning_errors, held_out_clips, ratio_statistics
 from vp2.benchmark.model_spec import resolve_model
+from vp2.data.datasets import default_dataset
 from vp2.data.storage import load_manifest
+from vp2.envs import ENV_NAMES
 from vp2.report.charts import line_chart
 from vp2.training import trainer as trainer_module
 from vp2.training.checkpoint import list_checkpoints
@@ -308,10 +310,10 @@ def card_fields(record: dict[str, Any], command: str) -> dict[str, Any]:
     c, moving = record["conditioning"], record["conditioning_moving"]
     data, family, level = record["settings"]["data"], record["family"], record["level_minutes"]
     date = record["date"][:10]
-    default = {"data/robodesk-20x-64px": "robodesk", "data/tabletop-100x-64px": "tabletop"}
+    collect = [f"vp2 collect {env}" for env in ENV_NAMES if Path(data) == default_dataset(env)]
     clock = "core" if record["settings"]["clock"] == "cpu" else "wall"
     return {
-        "dataset": {"made_with": [f"vp2 collect {default[data]}"] if data in default else None},
+        "dataset": {"made_with": collect or None},
         "budget": {
             "wall_minutes": None if clock == "core" else round(record["train_minutes"], 1),
             "core_minutes": round(record["train_minutes"], 1) if clock == "core" else None,
@@ -338,7 +340,7 @@ def card_fields(record: dict[str, Any], command: str) -> dict[str, Any]:
             "diagnose_measures, as vp2 diagnose does); MSE per pixel with the true actions "
             f"{c['mse_true']:.5f}, with another clip's {c['mse_shuffled']:.5f}",
         },  # fmt: skip
-        "rebuild": [*(["vp2 collect " + default[data]] if data in default else []), command],
+        "rebuild": [*collect, command],
         "notes": f"{family} after {_label(level)} of the zoo training; the snapshot "
         f"snapshots/{family}-{_label(level)}.pt of the command's output folder",
     }
