@@ -39,7 +39,9 @@ def test_main_job_runs_each_agent_and_writes_the_table(tmp_path, monkeypatch):
 
 
 def test_shipped_models_run_only_on_their_envs(tmp_path, monkeypatch):
+    monkeypatch.setenv("VP2_ZOO_DIR", str(tmp_path))  # a user's zoo does not hide the package's
     assert main_job.shipped_model_envs() == ("robodesk", "tabletop")  # both are in the package
+    assert main_job.shipped_card("tabletop").checkpoint_path.name == "svg_prime_tiny_tabletop.pt"
     runs = main_job._run_configs(MainJobConfig(agents=("model",)))  # noqa: SLF001
     assert runs["svg_prime"].tasks == ("robodesk", "tabletop")
     assert runs["svg_prime"].model == "vp2.benchmark.main_job:shipped_model"

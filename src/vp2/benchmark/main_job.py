@@ -40,16 +40,18 @@ from vp2.benchmark.shipped_oracle import (
     ShippedOracle,
     load_shipped_oracle,
 )
+from vp2.models.zoo import ZooCard, ZooError, get_card
 from vp2.planning.planner import PlannerConfig
 from vp2.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
 
-#: The shipped small models, per environment: ``(registered name, checkpoint file in
-#: vp2/assets/models)``. Each plans only in the environment it was trained on.
-SHIPPED_MODELS: dict[str, tuple[str, str]] = {
-    "robodesk": ("svg_prime", "svg_prime_tiny_robodesk.pt"),
-    "tabletop": ("svg_prime", "svg_prime_tiny_tabletop.pt"),
+#: The shipped small models: per environment, the entry of the package's model zoo
+#: (vp2/assets/zoo) whose card names the checkpoint (in vp2/assets/models) and its sha256.
+#: Each plans only in the environment it was trained on.
+SHIPPED_MODELS: dict[str, str] = {
+    "robodesk": "svg_prime-tiny-robodesk",
+    "tabletop": "svg_prime-tiny-tabletop",
 }
 #: The model spec of the main job's model agent: :func:`shipped_model`, which builds the
 #: shipped checkpoint of whichever environment a trial is in.
@@ -58,34 +60,40 @@ SHIPPED_MODEL_SPEC = "vp2.benchmark.main_job:shipped_model"
 AGENTS: tuple[str, ...] = ("model", "repeat_last_frame", "random")
 
 
-def shipped_checkpoint(env: str) -> Path | None:
-    """The shipped small model's checkpoint for ``env``, or ``None`` if it is not installed."""
+def shipped_card(env: str) -> ZooCard | None:
+    """The zoo card of ``env``'s shipped small model, or ``None`` if it is not installed (the
+    package's zoo, whatever ``$VP2_ZOO_DIR`` names)."""
     if env not in SHIPPED_MODELS:
         return None
-    path = Path(str(resources.files("vp2") / "assets" / "models" / SHIPPED_MODELS[env][1]))
-    return path if path.is_file() else None
+    try:
+        zoo = Path(str(resources.files("vp2") / "assets" / "zoo"))
+        card = get_card(SHIPPED_MODELS[env], zoo, verify=False)
+    except ZooError:
+        return None
+    return card if card.checkpoint_path.is_file() else None
 
 
 def shipped_model_envs() -> tuple[str, ...]:
     """The environments with an installed shipped model."""
-    return tuple(env for env in SHIPPED_MODELS if shipped_checkpoint(env) is not None)
+    return tuple(env for env in SHIPPED_MODELS if shipped_card(env) is not None)
 
 
 def shipped_model(env: str, action_dim: int, device: str = "cpu") -> Any:
-    """The shipped small model of ``env`` (``NAME:CHECKPOINT`` of :data:`SHIPPED_MODELS`).
+    """The shipped small model of ``env``: its zoo card's checkpoint, checked against the card.
 
     Raises:
         ValueError: no shipped model for ``env`` is installed.
+        ZooError: its checkpoint is not the one the card describes.
     """
     import torch
 
     from vp2.benchmark.model_spec import ModelSpec, resolve_model
 
-    path = shipped_checkpoint(env)
-    if path is None:
-        raise ValueError(f"no shipped model for {env!r} in vp2/assets/models (shipped for: "
+    card = shipped_card(env)
+    if card is None:
+        raise ValueError(f"no shipped model for {env!r} in vp2/assets (shipped for: "
                          f"{', '.join(shipped_model_envs()) or 'none'})")
-    spec = ModelSpec.parse(f"{SHIPPED_MODELS[env][0]}:{path}")
+    spec = ModelSpec.parse(f"{card.family}:{card.verify()}")
     return resolve_model(spec, {}, env=env, action_dim=action_dim, device=torch.device(device))
 
 
@@ -133,7 +141,7 @@ def _run_configs(config: MainJobConfig) -> dict[str, RunConfig]:
         elif config.tasks and not model_tasks:
             log.info("no %s task selected: the shipped model is not run", " or ".join(envs))
         else:
-            runs[SHIPPED_MODELS[envs[0]][0]] = RunConfig(
+            runs[shipped_card(envs[0]).family] = RunConfig(
                 model=SHIPPED_MODEL_SPEC, out=str(out / "model"),
                 planner=PlannerConfig(num_samples=config.model_samples),
                 **{**common, "tasks": model_tasks or envs})
