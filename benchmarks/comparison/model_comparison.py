@@ -16,6 +16,9 @@ a. **train** every family of :data:`FAMILIES` (SVG′, FitVid, Struct-VRNN, MCVD
 b. **conditioning**: each family's prediction error on held-out clips under the true and under
    shuffled actions (``benchmarks.studies.action_conditioning``'s functions): the ratio
    shuffled / true with its 95% bootstrap interval, on all pixels and on the pixels that change.
+   Then **diagnose**: ``vp2 diagnose`` of each family, extra model and repeat-last-frame at its
+   default measurements (those its predicted control score was fitted on) and the
+   comparison's planner samples, so the page shows the diagnosis beside the control score.
 c. **metrics**: ``vp2 metrics`` of each family and of repeat-last-frame on held-out clips
    (MSE, PSNR, SSIM; LPIPS and FVD where their weight files are on the machine, else skipped
    with a note).
@@ -47,6 +50,7 @@ Layout of ``--out``::
     log.jsonl                    one line per stage and invocation: found done, or ran
     train/<model>/, <model>.json a `vp2 train` run directory and its record once done
     conditioning/<family>.json   action conditioning
+    diagnose/<name>.json         `vp2 diagnose`: its report and the settings it was made with
     metrics/<name>/metrics.json  `vp2 metrics`
     runs/<name>/                 `vp2 run` directories (trials.jsonl, summary, GIFs, report)
     study/                       `vp2 study`: study.md, study.json, scatter plots
@@ -83,6 +87,7 @@ from benchmarks.comparison.model_comparison_results import relative_link, result
 from benchmarks.studies.action_conditioning import evaluate as conditioning_errors
 from benchmarks.studies.action_conditioning import held_out_clips, ratio_statistics
 from vp2.benchmark.config import RunConfig
+from vp2.benchmark.diagnose import DiagnoseConfig, diagnose_model
 from vp2.benchmark.model_spec import resolve_model
 from vp2.benchmark.runner import RunResult, run_benchmark
 from vp2.data.storage import load_manifest
@@ -176,6 +181,8 @@ class Settings:
     fvd: bool
     conditioning_clips: int
     conditioning_samples: int
+    diagnose_clips: int | None  # None: vp2 diagnose's default (what its predictor was fitted on)
+    diagnose_instances: int | None  # instances per task probed; None: vp2 diagnose's default
     skip_train: bool
     smoke: bool
     command: str
@@ -415,6 +422,35 @@ def conditioning_stage(s: Settings, family: str, spec: str, stage_log: StageLog)
     stage_log.add("conditioning", family, "ran", ratio=record["all_pixels"]["ratio"])
 
 
+def diagnose_stage(s: Settings, name: str, spec: str, stage_log: StageLog) -> Path:
+    """``vp2 diagnose`` of one model: ``diagnose/<name>.json`` holds ``settings`` and the
+    diagnose ``report``. Clips and probed instances stay at diagnose's defaults unless the
+    settings give them (``--smoke``), since its predicted score was fitted at those."""
+    path = s.out / "diagnose" / f"{name}.json"
+    env = load_manifest(s.data).get("config", {}).get("env", "robodesk")
+    fields = {"clips": s.diagnose_clips, "instances_per_task": s.diagnose_instances}
+    fields = {k: v for k, v in fields.items() if v is not None}
+    config = DiagnoseConfig(
+        model=spec, env=env, data=str(s.data), num_samples=s.num_samples, device=s.device,
+        progress=sys.stderr.isatty(), **fields,
+    )  # fmt: skip
+    settings = {
+        "model": spec, "data": str(s.data), "env": env, "num_samples": s.num_samples,
+        "clips": config.clips, "instances_per_task": config.instances_per_task,
+        "sampling_seeds": config.sampling_seeds, "seed": config.seed,
+    }  # fmt: skip
+    if done_record(path, settings) is not None:
+        stage_log.add("diagnose", name, "done earlier")
+        return path
+    report = diagnose_model(config)
+    write_json_atomic(path, json_safe({"settings": settings, "report": report}))
+    stage_log.add(
+        "diagnose", name, "ran", predicted=report.get("predicted_control_score"),
+        seconds=report["timing"]["total_s"],
+    )  # fmt: skip
+    return path
+
+
 # --------------------------------------------------------------------------- c. metrics
 
 
@@ -580,6 +616,8 @@ def run_comparison(s: Settings) -> Path:
     for family, spec in specs.items():
         conditioning_stage(s, family, spec, stage_log)
     predictors = {**specs, "repeat_last_frame": "repeat_last_frame"}
+    for name, spec in predictors.items():
+        diagnose_stage(s, name, spec, stage_log)
     fvd_metric = shared_fvd(s)  # loading the I3D takes a second, even when all is done
     metrics_files = {
         name: metrics_stage(s, name, spec, stage_log, fvd_metric)
@@ -672,14 +710,15 @@ FULL = dict(
     budget_minutes=60.0, tasks=["robodesk"], num_instances=3, seeds=[0, 1], num_samples=50,
     num_steps=15, batch_size=32, eval_batches=4, eval_interval=1000, ckpt_interval=500,
     log_interval=50, metrics_clips=1000, lpips=["alex", "vgg"], fvd=True,
-    conditioning_clips=128, conditioning_samples=3, loader_workers=2,
+    conditioning_clips=128, conditioning_samples=3, loader_workers=2, diagnose_clips=None,
+    diagnose_instances=None,
 )  # fmt: skip
 #: What ``--smoke`` sets (unless given on the command line): a run of minutes on a CPU.
 SMOKE = dict(
     budget_minutes=0.1, tasks=["robodesk/push_red"], num_instances=1, seeds=[0], num_samples=8,
     num_steps=3, batch_size=4, eval_batches=1, eval_interval=0, ckpt_interval=0, log_interval=5,
     metrics_clips=8, lpips=[], fvd=False, conditioning_clips=8, conditioning_samples=1,
-    loader_workers=0,
+    loader_workers=0, diagnose_clips=4, diagnose_instances=0,
 )  # fmt: skip
 
 
@@ -859,6 +898,8 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
         fvd=bool(value["fvd"]),
         conditioning_clips=value["conditioning_clips"],
         conditioning_samples=value["conditioning_samples"],
+        diagnose_clips=value["diagnose_clips"],
+        diagnose_instances=value["diagnose_instances"],
         skip_train=args.skip_train,
         smoke=args.smoke,
         command=command,

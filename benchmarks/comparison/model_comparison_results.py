@@ -1,7 +1,7 @@
 """``results.md`` of ``benchmarks.comparison.model_comparison``, from the files its stages wrote.
 
 :func:`results_markdown` reads only the comparison's output folder: ``comparison.json`` (the
-settings and the command), ``train/<model>.json``, ``conditioning/<family>.json``,
+settings and the command), ``train/<model>.json``, ``conditioning/<family>.json``, ``diagnose/<name>.json``,
 ``metrics/<name>/metrics.json``, ``runs/<name>/summary.json``, ``study/study.json`` and
 ``report.png``. So the page can be rebuilt from a copied folder, and no number in it comes
 from anywhere else.
@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from vp2.benchmark.diagnose_verdicts import TOP_FRACTION
 from vp2.report.study import ALL_TASKS, STUDY_METRICS
 
 #: The metrics table's columns: key in ``metrics.json``, title, scale, format.
@@ -91,6 +92,7 @@ def results_markdown(
     lines += budget_lines(out, s)
     lines += success_lines(out, s)
     lines += conditioning_lines(out, s)
+    lines += diagnosis_lines(out, s)
     lines += metrics_lines(out, s)
     lines += study_lines(out / "study" / "study.json")
     if notes:
@@ -240,6 +242,68 @@ def conditioning_lines(out: Path, s: dict[str, Any]) -> list[str]:
             f"| {family} | {a['ratio']:.3f} [{a['ci'][0]:.3f}, {a['ci'][1]:.3f}] | "
             f"{m['ratio']:.3f} [{m['ci'][0]:.3f}, {m['ci'][1]:.3f}] | "
             f"{m['wins']}/{m['n']} | {m['sign_p']:.2g} |"
+        )
+    return [*lines, ""]
+
+
+def control_seconds(run_dir: Path) -> tuple[float, int]:
+    """Wall seconds of a run's trials (each trial's ``timings.total_s``) and how many trials."""
+    path = run_dir / "trials.jsonl"
+    if not path.is_file():
+        return 0.0, 0
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    rows = [r for r in rows if r.get("error") is None and (r.get("timings") or {}).get("total_s")]
+    return sum(r["timings"]["total_s"] for r in rows), len(rows)
+
+
+def diagnosis_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    """``vp2 diagnose`` of every model beside its measured success; empty when no model of the
+    comparison was diagnosed (a build from before the stage existed)."""
+    names = s["metrics_names"]
+    records = {name: _read(out / "diagnose" / f"{name}.json") for name in names}
+    if not any(records.values()):
+        return []
+    first = next(r for r in records.values() if r)["settings"]
+    lines = [
+        "## Diagnosis beside control",
+        "",
+        f"`vp2 diagnose` of each model ({first['clips']} held-out clips, the first "
+        f"{first['instances_per_task']} instance(s) of each {first['env']} task probed at their "
+        f"first planning step, {first['num_samples']} planner samples): its verdict on the "
+        "actions, where the instance's scripted plan ranks under the model's cost, whether the "
+        "ranking repeats across the model's noise, and its predicted success (docs/diagnose.md), "
+        "beside the success the control runs above measured. Time: diagnose against all of "
+        "this comparison's control trials of the model, same machine.",
+        "",
+        f"| model | actions | scripted plan in the top {TOP_FRACTION:.0%} | ranking repeats (median ρ) | "
+        "predicted success | measured success | time: diagnose / control |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name in names:
+        record = records[name]
+        if record is None:
+            lines.append(f"| {name} | pending | | | | | |")
+            continue
+        r = record["report"]
+        verdict = r["verdicts"]["action_conditioning"]["text"]
+        plan = r["planning"].get("scripted_plan") or {}
+        in_top = (
+            f"{round(plan['top_fraction'] * plan['instances'])}/{plan['instances']} "
+            f"(median rank {plan['median_rank']:g} of {plan['of']})"
+            if plan.get("instances") else "–"
+        )  # fmt: skip
+        rho = (r["planning"].get("repeatability") or {}).get("median_rho")
+        predicted = r.get("predicted_control_score")
+        summary = _read(out / "runs" / name / "summary.json")
+        measured = _pct(summary.get("mean")) if summary else "pending"
+        seconds, trials = control_seconds(out / "runs" / name)
+        time_cell = f"{r['timing']['total_s']:.0f} s / " + (
+            f"{seconds:.0f} s ({trials} trial{'' if trials == 1 else 's'})" if trials else "–"
+        )
+        lines.append(
+            f"| {name} | {verdict} | {in_top} | {_num(rho)} | "
+            f"{_pct(predicted) + '%' if predicted is not None else '–'} | "
+            f"{measured + '%' if summary else measured} | {time_cell} |"
         )
     return [*lines, ""]
 

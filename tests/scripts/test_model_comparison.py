@@ -114,6 +114,22 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
         "repeat_last_frame",
     ]
     assert (out / "report.html").stat().st_size > 10_000
+    # vp2 diagnose of every predictor, beside the success its run measured.
+    diagnosis = _table(results, "| model | actions |")
+    assert [row[0] for row in diagnosis[2:]] == [*FAMILIES, EXTRA[0], "repeat_last_frame"]
+    for row in diagnosis[2:]:
+        record = json.loads((out / "diagnose" / f"{row[0]}.json").read_text())
+        assert record["settings"]["clips"] == 4 and record["settings"]["instances_per_task"] == 0
+        report = record["report"]
+        assert report["action_conditioning"]["clips"] == 4
+        assert row[1] == report["verdicts"]["action_conditioning"]["text"]
+        assert row[2] == "–" and row[4] == "–"  # no instance probed: no predicted score
+        mean = json.loads((out / "runs" / row[0] / "summary.json").read_text())["mean"]
+        assert row[5] == f"{100 * mean:.0f}%"
+        assert row[6] == f"{report['timing']['total_s']:.0f} s / " + (
+            f"{read_trials(out / 'runs' / row[0])[0]['timings']['total_s']:.0f} s (1 trial)"
+        )
+    assert "predictions do not depend on the actions" in diagnosis[-1][1]  # repeat-last-frame
     # The baselines ran first; the page was published after each run with what was pending.
     (first,) = _log(out)
     assert [x["name"] for x in first if x["stage"] == "run"] == [*RUNS[3:], EXTRA[0], *FAMILIES]
@@ -147,6 +163,9 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
     assert {status[("train", f)] for f in FAMILIES} == {"done earlier"}
     assert status[("conditioning", "fitvid")] == "ran"
     assert status[("conditioning", "struct_vrnn")] == "done earlier"
+    assert {status[("diagnose", n)] for n in (*FAMILIES, EXTRA[0], "repeat_last_frame")} == {
+        "done earlier"
+    }
     assert {status[("metrics", n)] for n in (*FAMILIES, EXTRA[0], "repeat_last_frame")} == {
         "done earlier"
     }
