@@ -23,7 +23,9 @@ c. **metrics**: ``vp2 metrics`` of each family and of repeat-last-frame on held-
    (MSE, PSNR, SSIM; LPIPS and FVD where their weight files are on the machine, else skipped
    with a note).
 ``--extra LABEL=MODEL`` adds a model that is not trained here (a checkpoint from elsewhere, any
-``vp2 run --model`` spec) to stages b.–g., labelled as outside the budget.
+``vp2 run --model`` spec) to stages b.–g., labelled as outside the budget; a zoo model
+(``zoo:NAME``) shows its card's training budget, steps and device instead. ``--families``
+with no family compares extra models only (e.g. the zoo's).
 
 d. **runs**: ``vp2 run`` of each family, repeat-last-frame and random actions on the RoboDesk
    tasks (the first ``--num-instances`` of each, ``--seeds``, ``--num-samples`` planner
@@ -51,6 +53,7 @@ Layout of ``--out``::
     train/<model>/, <model>.json a `vp2 train` run directory and its record once done
     conditioning/<family>.json   action conditioning
     diagnose/<name>.json         `vp2 diagnose`: its report and the settings it was made with
+    zoo/<label>.json             the card of an extra model from the zoo (`zoo:NAME`)
     metrics/<name>/metrics.json  `vp2 metrics`
     runs/<name>/                 `vp2 run` directories (trials.jsonl, summary, GIFs, report)
     study/                       `vp2 study`: study.md, study.json, scatter plots
@@ -88,7 +91,7 @@ from benchmarks.studies.action_conditioning import evaluate as conditioning_erro
 from benchmarks.studies.action_conditioning import held_out_clips, ratio_statistics
 from vp2.benchmark.config import RunConfig
 from vp2.benchmark.diagnose import DiagnoseConfig, diagnose_model
-from vp2.benchmark.model_spec import resolve_model
+from vp2.benchmark.model_spec import ModelSpec, resolve_model
 from vp2.benchmark.runner import RunResult, run_benchmark
 from vp2.data.storage import load_manifest
 from vp2.metrics.evaluate import DEFAULT_BATCH_SIZE, evaluate_model, write_metrics
@@ -422,6 +425,20 @@ def conditioning_stage(s: Settings, family: str, spec: str, stage_log: StageLog)
     stage_log.add("conditioning", family, "ran", ratio=record["all_pixels"]["ratio"])
 
 
+def write_zoo_cards(s: Settings) -> list[Path]:
+    """The card of each extra model from the zoo (``zoo:NAME``, checked against its
+    checkpoint), as ``zoo/<label>.json``: the page's budget row reads it. Returns the files."""
+    written = []
+    for label, spec in s.extras:
+        parsed = ModelSpec.parse(spec)
+        if parsed.kind == "zoo":
+            parsed.check()
+            path = s.out / "zoo" / f"{label}.json"
+            write_json_atomic(path, json_safe(parsed.zoo.to_json()))
+            written.append(path)
+    return written
+
+
 def diagnose_stage(s: Settings, name: str, spec: str, stage_log: StageLog) -> Path:
     """``vp2 diagnose`` of one model: ``diagnose/<name>.json`` holds ``settings`` and the
     diagnose ``report``. Clips and probed instances stay at diagnose's defaults unless the
@@ -610,6 +627,7 @@ def run_comparison(s: Settings) -> Path:
         "torch_version": torch.__version__,
     }
     write_json_atomic(s.out / "comparison.json", json_safe(record))
+    write_zoo_cards(s)
     train_records = {f: train_family(s, f, stage_log) for f in s.families}
     specs = {f: model_spec(f, records) for f, records in train_records.items()}
     specs.update(s.extras)
@@ -737,7 +755,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     p.add_argument("--data", type=Path, default=Path("data/robodesk-300x-64px"))
     p.add_argument("--budget-minutes", type=float, help="training minutes per family (default 60)")
-    p.add_argument("--families", nargs="+", choices=list(FAMILIES), default=list(FAMILIES))
+    p.add_argument(
+        "--families",
+        nargs="*",
+        choices=list(FAMILIES),
+        default=list(FAMILIES),
+        help="families to train and compare (default: all five; none: only --extra models)",
+    )
     p.add_argument("--tasks", nargs="+", help="task categories or env (default: robodesk)")
     p.add_argument("--num-instances", type=int, help="first instances of each task (default 3)")
     p.add_argument("--seeds", type=int, nargs="+", help="control-run seeds (default: 0 1)")

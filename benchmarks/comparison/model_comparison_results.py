@@ -127,14 +127,24 @@ def reading_lines(notes: str) -> list[str]:
 
 
 def budget_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    if not s["families"]:
+        intro = (
+            "No family is trained by this comparison: every model comes from elsewhere. A zoo "
+            "model's row gives the training budget, steps and device its card records "
+            "(`vp2 zoo list`)."
+        )
+    else:
+        intro = (
+            f"Dataset `{s['data']}`, batch {s['batch_size']}, seed 0. Every family got "
+            f"**{s['budget_minutes']:g} minutes** of training wall time (`vp2 train "
+            "--max-minutes`: optimisation steps with their data loading, summed over resumed "
+            "sessions; validation and checkpoint writing left out. MaskViT's budget is split "
+            "1/3 tokenizer, 2/3 transformer). Steps reached depend on the device and its load."
+        )
     lines = [
         "## Training budget",
         "",
-        f"Dataset `{s['data']}`, batch {s['batch_size']}, seed 0. Every family got "
-        f"**{s['budget_minutes']:g} minutes** of training wall time (`vp2 train --max-minutes`: "
-        "optimisation steps with their data loading, summed over resumed sessions; validation "
-        "and checkpoint writing left out. MaskViT's budget is split 1/3 tokenizer, 2/3 "
-        "transformer). Steps reached depend on the device and its load.",
+        intro,
         "",
         "| family | model (preset) | parameters | budget (min) | minutes used | steps reached "
         "| device | threads |",
@@ -155,8 +165,24 @@ def budget_lines(out: Path, s: dict[str, Any]) -> list[str]:
                 f"{r['train_minutes']:.3g} | {steps} | {r['device']} | {r['threads'] or '–'} |"
             )
     for label, spec in s.get("extra_models", {}).items():
-        lines.append(f"| {label} | `{spec}` | – | not trained here | – | – | – | – |")
+        card = _read(out / "zoo" / f"{label}.json")
+        if card is None:
+            lines.append(f"| {label} | `{spec}` | – | not trained here | – | – | – | – |")
+            continue
+        budget = card["budget"]
+        minutes = budget.get("core_minutes") or budget.get("max_minutes") or budget.get(
+            "wall_minutes"
+        )
+        lines.append(
+            f"| {label} | `{spec}` ({card['family']}, {card['preset'] or 'default preset'}) | "
+            f"{card['parameters'] / 1e6:.2f} M | {_budget(minutes)} (zoo card) | – | "
+            f"{card['steps']:,} | {card['device'] or '–'} | – |"
+        )
     return [*lines, ""]
+
+
+def _budget(minutes: float | None) -> str:
+    return "not recorded" if minutes is None else f"{minutes:.3g}"
 
 
 def success_lines(out: Path, s: dict[str, Any]) -> list[str]:

@@ -4,6 +4,7 @@ then again to show that it resumes (slow: about a minute per invocation on a loa
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -330,3 +331,29 @@ def test_the_reading_section_links_the_notes_from_where_the_page_is_written(tmp_
         "[findings/model-comparison.md](findings/model-comparison.md)."
     )
     assert "## Reading" not in results_markdown(tmp_path, "no screenshot")
+
+
+def test_a_zoo_model_shows_the_budget_its_card_records(comparison, tmp_path):
+    from benchmarks.comparison.model_comparison_results import budget_lines
+
+    from vp2.models.zoo import get_card
+
+    argv = ["--smoke", "--families", "--extra", "svg=zoo:svg_prime-tiny-tabletop"]
+    s = comparison.settings_from_args(comparison.parse_args(argv), argv)
+    assert s.families == () and s.extras == (("svg", "zoo:svg_prime-tiny-tabletop"),)
+    s = dataclasses.replace(s, out=tmp_path)
+    assert comparison.write_zoo_cards(s) == [tmp_path / "zoo" / "svg.json"]
+    card = json.loads((tmp_path / "zoo" / "svg.json").read_text())
+    assert card == get_card("svg_prime-tiny-tabletop").to_json()
+    page = {"families": [], "family_stages": {}, "extra_models": dict(s.extras)}
+    text = "\n".join(budget_lines(tmp_path, page))
+    assert "No family is trained by this comparison" in text
+    assert (
+        f"| svg | `zoo:svg_prime-tiny-tabletop` (svg_prime, {card['preset']}) | "
+        f"{card['parameters'] / 1e6:.2f} M | 15 (zoo card) | – | {card['steps']:,} | "
+        f"{card['device']} | – |"
+    ) in text
+    (tmp_path / "zoo" / "svg.json").unlink()  # not from the zoo: no card, no budget
+    assert "| svg | `zoo:svg_prime-tiny-tabletop` | – | not trained here |" in "\n".join(
+        budget_lines(tmp_path, page)
+    )
