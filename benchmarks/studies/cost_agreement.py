@@ -14,7 +14,8 @@ scripted plan, last) and the task's cost scores them twice: with the simulator's
   simulator scores best is among the model's best tenth.
 
 The simulator's scores are computed once per instance and point (the candidates do not depend
-on the model), then each model scores the same batch. With ``--models FILE`` (the model list
+on the model; cached on disk as `vp2 diagnose` caches them), then each model scores the same
+batch. With ``--models FILE`` (the model list
 of ``benchmarks.studies.diagnose_validation``: label, model, control run folders) each model's
 measured success is read from its control runs and the page gives Spearman's ρ of each
 measure with success across models.
@@ -37,10 +38,17 @@ import torch
 from tqdm.auto import tqdm
 
 from benchmarks import common
-from vp2.benchmark.diagnose_measures import scripted_plan, spearman
+from vp2.benchmark.diagnose_measures import (
+    first_step_context,
+    oracle_cache_dir,
+    scripted_plan,
+    simulator_agreement,
+    simulator_scores,
+    spearman,
+)
 from vp2.benchmark.model_spec import resolve_model
 from vp2.benchmark.results import read_trials
-from vp2.benchmark.trial import goal_image_at, trial_seed
+from vp2.benchmark.trial import trial_seed
 from vp2.data.suite import TaskInstance, TaskSuite
 from vp2.envs import env_class
 from vp2.planning.agent import PlanningAgent, frames_to_tensor
@@ -51,82 +59,37 @@ from vp2.utils.io import write_json_atomic
 #: The points of an instance's scripted path that are probed: after none, and after half, of
 #: its scripted actions.
 POINTS = ("start", "mid-push")
-#: "Top" of the model's ranking: this fraction of the candidates.
-TOP_FRACTION = 0.10
+#: The image side the models and the cost see.
+IMAGE_SIZE = 64
 
 
-def point_context(instance: TaskInstance, size: int, executed: int) -> dict[str, Any]:
-    """What a planning step sees after the zero action and the first ``executed`` scripted
-    actions: the goal image, the last two frames, the simulator state, the last action and
+def point(instance: TaskInstance, executed: int) -> dict[str, Any]:
+    """The planning-step context after the zero action and ``executed`` scripted actions
+    (:func:`~vp2.benchmark.diagnose_measures.first_step_context`), with the last action and
     the scripted actions still to come."""
-    env = instance.make_env(observation_size=None)
-    try:
-        goal = goal_image_at(instance, env, size)
-        env.reset_to(instance.init_state)
-        env.set_goal(instance.goal_state)
-        last = np.zeros(env.action_dim)
-        frames = [env.render(size)]
-        env.step(last)
-        frames.append(env.render(size))
-        for action in instance.actions[:executed]:
-            last = np.asarray(action, dtype=np.float64)
-            env.step(last)
-            frames.append(env.render(size))
-        state = env.get_state()
-    finally:
-        env.close()
-    return {
-        "goal": goal,
-        "frames": np.stack(frames[-2:]),
-        "state": state,
-        "last_action": last,
-        "rest": instance.actions[executed:],
-    }
+    goal, frames, state = first_step_context(instance, IMAGE_SIZE, executed)
+    last = instance.actions[executed - 1] if executed else np.zeros(instance.actions.shape[1])
+    return {"goal": goal, "frames": frames, "state": state, "last_action": last,
+            "rest": instance.actions[executed:]}  # fmt: skip
 
 
-def score(
-    model: Any,
-    instance: TaskInstance,
-    point: dict[str, Any],
-    seed: int,
-    num_samples: int,
-    batch: torch.Tensor | None,
+def model_scores(
+    model: Any, instance: TaskInstance, context: dict[str, Any], seed: int, num_samples: int,
     device: torch.device,
 ) -> tuple[np.ndarray, torch.Tensor]:
-    """The task's cost of each candidate under ``model`` (scores, higher is better) and the
-    batch scored; ``batch=None`` draws it: the sampler's candidates, the rest of the scripted
-    plan last."""
+    """The model's scores of the candidates the trial ``(instance, seed)`` draws at this point
+    plus the rest of the scripted plan (last), and that batch."""
     agent = PlanningAgent(model, PlannerConfig(num_samples=num_samples), "auto", device=device)
-    agent.reset(instance.task, point["goal"], trial_seed(instance.task, instance.index, seed))
-    if getattr(agent.model, "needs_simulator_state", False):
-        agent.model.set_simulator_state(instance.env_meta, point["state"])
-    context = frames_to_tensor(point["frames"][-agent.num_context :], agent.device)
-    last = torch.as_tensor(point["last_action"], dtype=torch.float32, device=agent.device)
-    objective = agent.objective(context, last)
-    if batch is None:
-        optimizer = agent.optimizer
-        std = broadcast_std(optimizer.sigma, agent.plan)
-        candidates = optimizer.sampler.sample(agent.plan, std, num_samples, agent.generator)
-        rest = scripted_plan(point["rest"], agent.horizon, agent.action_dim).to(candidates)
-        batch = torch.cat([candidates, rest[None]])
+    agent.reset(instance.task, context["goal"], trial_seed(instance.task, instance.index, seed))
+    optimizer = agent.optimizer
+    std = broadcast_std(optimizer.sigma, agent.plan)
+    candidates = optimizer.sampler.sample(agent.plan, std, num_samples, agent.generator)
+    rest = scripted_plan(context["rest"], agent.horizon, agent.action_dim).to(candidates)
+    batch = torch.cat([candidates, rest[None]])
+    frames = frames_to_tensor(context["frames"][-agent.num_context :], agent.device)
+    last = torch.as_tensor(context["last_action"], dtype=torch.float32, device=agent.device)
     with torch.no_grad():
-        return objective(batch.to(agent.device)).double().cpu().numpy(), batch
-
-
-def agreement(model_scores: np.ndarray, oracle_scores: np.ndarray) -> dict[str, Any]:
-    """Spearman's ρ of the two scorings (0 where the model scores every candidate the same: it
-    orders nothing), and whether the oracle's best candidate is in the model's top
-    :data:`TOP_FRACTION` (ties count against it: its rank is the number of candidates the model
-    scores at least as high)."""
-    top = max(1, int(TOP_FRACTION * len(model_scores)))
-    best = int(np.argmax(oracle_scores))
-    model_rank = int((model_scores >= model_scores[best]).sum())
-    rho = spearman(model_scores, oracle_scores)
-    return {
-        "rho": 0.0 if rho is None and np.ptp(model_scores) == 0 else rho,
-        "oracle_best_rank": model_rank,
-        "oracle_best_in_top": model_rank <= top,
-    }
+        return agent.objective(frames, last)(batch).double().cpu().numpy(), batch
 
 
 def success_of(run_dirs: Sequence[str | Path]) -> tuple[int, int]:
@@ -147,8 +110,10 @@ def run(
     num_samples: int,
     seed: int,
     device: torch.device,
+    cache: Path | None = None,
 ) -> dict[str, Any]:
-    """The agreement of every model with the simulator (module docstring)."""
+    """The agreement of every model with the simulator (module docstring); ``cache``: where
+    the simulator's scores are kept (:func:`~vp2.benchmark.diagnose_measures.simulator_scores`)."""
     instances = TaskSuite.load(None).select([env], instances_per_task)
     action_dim = int(env_class(env).action_dim)
     oracle = resolve_model("simulator", {}, env=env, action_dim=action_dim, device=device)
@@ -161,14 +126,17 @@ def run(
     for instance in instances:
         for name in POINTS:
             executed = 0 if name == "start" else len(instance.actions) // 2
-            point = point_context(instance, 64, executed)
-            oracle_scores, batch = score(oracle, instance, point, seed, num_samples, None, device)
+            context = point(instance, executed)
+            oracle_scores = None
             for label, model in loaded.items():
-                scores, _ = score(model, instance, point, seed, num_samples, batch, device)
+                scores, batch = model_scores(model, instance, context, seed, num_samples, device)
+                if oracle_scores is None:  # the batch is the same for every model
+                    oracle_scores = simulator_scores(oracle, instance, batch, context, seed,
+                                                     num_samples, device, cache)  # fmt: skip
                 rows.append({
                     "model": label, "task": instance.task, "instance": instance.index,
                     "point": name, "executed": executed,
-                    **agreement(scores[:num_samples], oracle_scores[:num_samples]),
+                    **simulator_agreement(scores[:num_samples], oracle_scores[:num_samples]),
                 })  # fmt: skip
             bar.update(1)
     bar.close()
@@ -179,7 +147,7 @@ def run(
         for name in POINTS:
             at = [r for r in mine if r["point"] == name]
             entry[name] = {
-                "median_rho": _median([r["rho"] for r in at]),
+                "median_rho": _median([r["oracle_rho"] for r in at]),
                 "oracle_best_in_top": sum(r["oracle_best_in_top"] for r in at) / len(at),
             }
         if m.get("control"):
@@ -249,7 +217,7 @@ def main(argv: list[str] | None = None) -> None:
             parser.error(f"--only: no model {unknown} in {args.models}")
         models = [m for m in models if m["label"] in args.only]
     result = run(models, args.env, args.instances_per_task, args.num_samples, args.seed,
-                 torch.device("cpu"))  # fmt: skip
+                 torch.device("cpu"), oracle_cache_dir())  # fmt: skip
     write_json_atomic(args.out / "cost_agreement.json", result)
     page = markdown(result)
     (args.out / "cost_agreement.md").write_text(page)

@@ -113,6 +113,10 @@ def validate(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         table = {"predicted (held out)": (rho, len(models))}
         for key, sign in (("ssim", 1.0), ("lpips", -1.0), ("fvd", -1.0)):
             table[key] = _signed_spearman([m[key] for m in models], success, sign)
+        for name in FEATURES:  # each measure alone, as it is: nothing fitted
+            table[f"{name} alone"] = _signed_spearman(
+                [m["features"][name] for m in models], success, 1.0
+            )
         predictor = fit(feats, success, trials)
         predictor.update(
             models_fitted=len(models),

@@ -32,8 +32,11 @@ from vp2.benchmark.diagnose import (
 )
 from vp2.benchmark.diagnose_measures import (
     effective_sample_size,
+    first_step_context,
     rank_of_last,
     ratio_statistics,
+    simulator_agreement,
+    simulator_scores,
     spearman,
 )
 from vp2.data.suite import TaskSuite
@@ -154,6 +157,11 @@ def test_a_model_that_uses_its_actions_and_one_that_ignores_them(data, suite):
     assert uses["planning"]["repeatability"]["median_rho"] == pytest.approx(1.0)  # deterministic
     status = _status(uses)
     assert status.pop("scripted_plan") in ("preferred", "not_preferred")  # ranks: checked above
+    # Scored by the simulator too: a shifted square is not the tabletop's future, so any
+    # agreement verdict is possible, but it is measured on both instances.
+    agree = uses["planning"]["oracle_agreement"]
+    assert agree["instances"] == 2 and -1 <= agree["median_rho"] <= 1
+    assert status.pop("oracle_agreement") in ("agrees", "partial", "disagrees")
     assert status == {
         "action_conditioning": "uses",
         "repeatability": "repeats",
@@ -169,6 +177,10 @@ def test_a_model_that_uses_its_actions_and_one_that_ignores_them(data, suite):
         "repeatability": "undefined",
         "spread": "flat",
         "direction": "undefined",
+        "oracle_agreement": "disagrees",  # it orders nothing: rho 0, the simulator's best tied
+    }
+    assert ignores["planning"]["oracle_agreement"] == {
+        "instances": 2, "median_rho": 0.0, "best_in_top_fraction": 0.0
     }
     assert ignores["verdicts"]["action_conditioning"]["text"] == (
         "predictions do not depend on the actions: it will plan like repeat-last-frame"
@@ -188,8 +200,11 @@ def test_scores_that_move_with_the_noise_are_noise(data, suite):
 
 
 def test_repeat_last_frame_report(data, suite, tmp_path):
-    report = _diagnose("repeat_last_frame", data, suite, clips=6, instances_per_task=1)
+    report = _diagnose("repeat_last_frame", data, suite, clips=6, instances_per_task=1,
+                       oracle_agreement=False)  # fmt: skip
     assert _status(report)["action_conditioning"] == "blind"
+    assert _status(report)["oracle_agreement"] == "skipped"
+    assert [r["oracle_rho"] for r in report["planning"]["instances"]] == [None]
     path = write_report(tmp_path / "out" / "diagnose.json", report)
     saved = json.loads(path.read_text())
     assert saved["format"] == "vp2-diagnose/1" and saved["env"] == "tabletop"
@@ -199,11 +214,14 @@ def test_repeat_last_frame_report(data, suite, tmp_path):
     assert set(saved["action_conditioning"]) >= {"ratio", "ci", "mse_true", "mse_shuffled",
                                                  "wins", "clips", "sign_p", "moving"}
     assert set(saved["planning"]) == {"instances", "scripted_plan", "repeatability", "spread",
-                                      "direction"}
-    assert set(saved["timing"]) == {"model_s", "conditioning_s", "planning_s", "total_s"}
+                                      "direction", "oracle_agreement"}
+    assert set(saved["timing"]) == {"model_s", "conditioning_s", "planning_s", "oracle_s",
+                                    "total_s"}  # fmt: skip
     assert saved["settings"]["num_samples"] == 16 and saved["settings"]["clips"] == 6
     lines = format_report(report)
-    assert len(lines) == 8 and lines[1].startswith("action conditioning: shuffled/true error ")
+    assert len(lines) == 9 and lines[1].startswith("action conditioning: shuffled/true error ")
+    assert lines[-3] == "agreement with the simulator: not measured: no simulator scores " \
+        "(--no-oracle-agreement, or a model that is the simulator)"
     assert lines[-2] == f"predicted control score: {NO_TABLETOP_PREDICTOR}"
 
 
@@ -302,3 +320,47 @@ def test_the_precheck_can_be_skipped_and_is_silent_without_a_dataset(
     assert precheck_model(config, ["tabletop"]) == []
     assert [r.levelno for r in caplog.records] == [logging.DEBUG]
     assert "no dataset at data/tabletop-100x-64px" in caplog.records[0].getMessage()
+
+
+# --------------------------------------------------------------------------- agreement
+
+
+def test_agreement_of_the_same_the_reversed_and_a_constant_ranking():
+    oracle = np.arange(20.0)  # candidate 19 is the simulator's best
+    same = simulator_agreement(oracle * 3 + 1, oracle)
+    assert same == {"oracle_rho": pytest.approx(1.0), "oracle_best_rank": 1,
+                    "oracle_best_in_top": True}  # fmt: skip
+    reversed_ = simulator_agreement(-oracle, oracle)
+    assert reversed_["oracle_rho"] == pytest.approx(-1.0)
+    assert reversed_["oracle_best_rank"] == 20 and not reversed_["oracle_best_in_top"]
+    flat = simulator_agreement(np.zeros(20), oracle)  # orders nothing; ties count against
+    assert flat == {"oracle_rho": 0.0, "oracle_best_rank": 20, "oracle_best_in_top": False}
+    second = oracle.copy()
+    second[[18, 19]] = second[[19, 18]]  # the simulator's best is the model's second of 20
+    assert simulator_agreement(second, oracle)["oracle_best_rank"] == 2
+    assert simulator_agreement(second, oracle)["oracle_best_in_top"]  # top 10% of 20: 2
+
+
+def test_the_simulators_scores_are_cached_by_instance_seed_and_batch(tmp_path):
+    from vp2.benchmark.model_spec import resolve_model
+
+    (instance,) = TaskSuite.load(tiny_suite_path()).instances[:1]
+    simulator = resolve_model("simulator", {}, env="tabletop", action_dim=4, device="cpu")
+    goal, frames, state = first_step_context(instance, 64)
+    context = {"goal": goal, "frames": frames, "state": state, "last_action": np.zeros(4)}
+    batch = torch.zeros(3, 10, 4)
+    batch[1, :, 0] = 1.0  # the hand moves along x
+    batch[2, :, 1] = 1.0  # ... along y
+    cache = tmp_path / "cache"
+    fresh = simulator_scores(simulator, instance, batch, context, 0, 2, torch.device("cpu"), cache)
+    assert fresh.shape == (3,) and len(set(fresh.tolist())) == 3  # the moves change the future
+    (saved,) = cache.glob("*.npy")
+    np.testing.assert_array_equal(np.load(saved), fresh)
+    np.save(saved, fresh + 1)  # what the cache holds is what comes back
+    again = simulator_scores(simulator, instance, batch, context, 0, 2, torch.device("cpu"), cache)
+    np.testing.assert_array_equal(again, fresh + 1)
+    other = simulator_scores(simulator, instance, batch.flip(0), context, 0, 2,
+                             torch.device("cpu"), cache)  # fmt: skip
+    np.testing.assert_allclose(other, fresh[::-1])  # another batch: scored anew
+    assert len(list(cache.glob("*.npy"))) == 2
+    simulator.close()

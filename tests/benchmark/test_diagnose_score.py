@@ -21,7 +21,8 @@ from vp2.benchmark.diagnose_score import (
 )
 
 
-def _report(low: float, top: float, rank: float, rho: float | None, gs: float, env="robodesk"):
+def _report(low: float, top: float, rank: float, rho: float | None, gs: float, env="robodesk",
+            agree: float | None = None):
     return {
         "env": env,
         "action_conditioning": {"ratio": low + 0.05, "ci": [low, low + 0.1]},
@@ -29,22 +30,25 @@ def _report(low: float, top: float, rank: float, rho: float | None, gs: float, e
             "scripted_plan": {"instances": 14, "of": 51, "median_rank": rank, "top_fraction": top},
             "repeatability": {"median_rho": rho},
             "spread": {"median_gamma_spread": gs},
+            "oracle_agreement": {"instances": 14, "median_rho": agree},
         },
     }
 
 
 def test_features_of_a_report():
-    f = features(_report(1.5, 0.5, 11, 0.8, 2.0))
+    f = features(_report(1.5, 0.5, 11, 0.8, 2.0, agree=0.6))
     assert list(f) == list(FEATURES)
     assert f["log_conditioning"] == pytest.approx(math.log(1.5))
     assert f["scripted_top"] == 0.5
     assert f["scripted_rank"] == pytest.approx(1 - 10 / 50)
     assert f["repeatability"] == 0.8
     assert f["steering"] == pytest.approx(1 - math.exp(-2.0))
+    assert f["oracle_agreement"] == 0.6
+    assert features(_report(1.5, 0.5, 11, 0.8, 2.0, agree=-0.3))["oracle_agreement"] == 0.0
     # An action-blind model: interval below 1, undefined ranking, flat scores: no credit.
     blind = features(_report(0.98, 0.0, 51, None, 0.0))
     assert blind == {"log_conditioning": 0.0, "scripted_top": 0.0, "scripted_rank": 0.0,
-                     "repeatability": 0.0, "steering": 0.0}  # fmt: skip
+                     "repeatability": 0.0, "steering": 0.0, "oracle_agreement": 0.0}  # fmt: skip
 
 
 def _synthetic(n: int = 8):
@@ -52,7 +56,7 @@ def _synthetic(n: int = 8):
     reports, success = [], []
     for k in range(n):
         q = k / (n - 1)
-        reports.append(_report(1.0 + 0.6 * q, q, 51 - 50 * q, q, 3 * q))
+        reports.append(_report(1.0 + 0.6 * q, q, 51 - 50 * q, q, 3 * q, agree=0.7 * q))
         success.append(0.05 + 0.6 * q)
     return [features(r) for r in reports], success
 
@@ -97,6 +101,10 @@ def test_predicted_score_says_why_when_there_is_none():
     assert score is None and "not fitted for tabletop" in reason
     report["planning"]["scripted_plan"]["instances"] = 0
     assert predicted_score(report, asset)[0] is None
+    # A predictor of other measures (an older vp2's asset): no score, and what to do, not a crash.
+    old = {"predictors": {"robodesk": {**predictor, "features": list(FEATURES[:-1])}}}
+    score, reason = predicted_score(_report(1.5, 0.5, 11, 0.8, 2.0), old)
+    assert score is None and "fitted on other measures" in reason and "--write-asset" in reason
 
 
 def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path):
@@ -104,7 +112,7 @@ def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path)
     entries = []
     for k, q in enumerate(np.linspace(0, 1, 6)):
         label = f"m{k}"
-        report = _report(1.0 + 0.6 * q, q, 51 - 50 * q, q, 3 * q)
+        report = _report(1.0 + 0.6 * q, q, 51 - 50 * q, q, 3 * q, agree=0.7 * q)
         (tmp_path / "out" / "reports").mkdir(parents=True, exist_ok=True)
         (tmp_path / "out" / "reports" / f"{label}.json").write_text(json.dumps(report))
         run = tmp_path / "runs" / label
@@ -136,6 +144,7 @@ def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path)
     )
     page = (tmp_path / "out" / "validation.md").read_text()
     assert "| predicted (held out) | +1.00 | 6 |" in page
+    assert "| oracle_agreement alone | +1.00 | 6 |" in page  # each measure, nothing fitted
 
 
 def test_a_wide_interval_around_1_is_inconclusive_not_blind():
@@ -156,16 +165,17 @@ def test_the_shipped_predictor_orders_a_planning_model_above_a_blind_one():
     asset = load_predictor()
     predictor = asset["predictors"]["robodesk"]
     assert predictor["features"] == list(FEATURES) and predictor["models_fitted"] == 7
-    assert predictor["validation"]["held_out_spearman"] == pytest.approx(0.847, abs=1e-3)
-    uses = _report(1.35, 1.0, 1, 0.996, 8.9)  # the shipped SVG′'s measures
+    assert predictor["validation"]["held_out_spearman"] == pytest.approx(0.883, abs=1e-3)
+    uses = _report(1.35, 1.0, 1, 0.996, 8.9, agree=0.666)  # the shipped SVG′'s measures
     blind = {"env": "robodesk", "action_conditioning": {"ratio": 1.0, "ci": [1.0, 1.0]},
              "planning": {"scripted_plan": {"instances": 14, "of": 51, "median_rank": 51,
                                             "top_fraction": 0.0},
                           "repeatability": {"median_rho": None},
-                          "spread": {"median_gamma_spread": 0.0}}}  # fmt: skip
+                          "spread": {"median_gamma_spread": 0.0},
+                          "oracle_agreement": {"instances": 14, "median_rho": 0.0}}}  # fmt: skip
     good, reason = predicted_score(uses, asset)
     bad, _ = predicted_score(blind, asset)
-    assert good > 0.5 > 0.05 > bad and "fitted on 7 models (held-out Spearman +0.85" in reason
+    assert good > 0.5 > 0.05 > bad and "fitted on 7 models (held-out Spearman +0.88" in reason
 
 
 def test_the_shipped_predictor_rebuilds_from_its_committed_evidence(tmp_path, monkeypatch):

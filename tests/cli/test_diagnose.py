@@ -35,10 +35,12 @@ def test_defaults_and_flags_map_onto_the_config():
         "diagnose", "--model", "m:f", "--env", "tabletop", "--model-arg", "speed=0.5",
         "--clips", "8", "--instances-per-task", "1", "--num-samples", "20", "--seed", "3",
         "--device", "cpu", "--sampling-seeds", "1", "--no-progress", "--out", "r.json",
+        "--no-oracle-agreement",
     ])
     assert build(DiagnoseConfig, args, diagnose_cmd.FLAGS) == DiagnoseConfig(
         model="m:f", env="tabletop", model_args={"speed": 0.5}, clips=8, instances_per_task=1,
         num_samples=20, seed=3, device="cpu", sampling_seeds=1, progress=False,
+        oracle_agreement=False,
     )
     assert args.out == "r.json"
 
@@ -60,7 +62,12 @@ def test_prints_a_verdict_per_measure_and_writes_the_report(data, tmp_path, caps
     assert printed[2] == "scripted plan: not measured: the instances store no scripted plan"
     assert printed[4].endswith("-> the scores are too flat to steer MPPI: it executes the mean "
                                "of its samples, as with repeat-last-frame")
-    assert printed[6] == f"predicted control score: {NO_TABLETOP_PREDICTOR}"
+    assert printed[6] == (
+        "agreement with the simulator: Spearman +0.00 (median over 1 instances), its best "
+        "candidate in the model's top 10% on 0 -> the model's ranking of the candidates is not "
+        "the simulator's: its favourites are not what would happen"
+    )
+    assert printed[7] == f"predicted control score: {NO_TABLETOP_PREDICTOR}"
     assert printed[-1] == f"wrote {out}"
     report = json.loads(out.read_text())
     assert report["verdicts"]["action_conditioning"]["status"] == "blind"

@@ -346,8 +346,11 @@ def test_diagnosis_section_shows_a_vp2_diagnose_report_beside_measured_success(t
         "env": "tabletop",
         "action_conditioning": {"ratio": 1.42, "ci": [1.3, 1.55], "clips": 64},
         "planning": {"scripted_plan": {"instances": 8, "of": 51, "median_rank": 3,
-                                       "top_fraction": 0.75}},
-        "verdicts": {"conditioning": {"status": "uses", "text": "predictions depend on the actions"}},
+                                       "top_fraction": 0.75},
+                     "oracle_agreement": {"instances": 8, "median_rho": 0.61,
+                                          "best_in_top_fraction": 0.5}},
+        "verdicts": {"action_conditioning": {"status": "uses",
+                                             "text": "predictions depend on the actions"}},
         "predicted_control_score": 0.41,
         "predicted_control_score_reason": "fitted",
     }))  # fmt: skip
@@ -356,7 +359,9 @@ def test_diagnosis_section_shows_a_vp2_diagnose_report_beside_measured_success(t
     cells = re.findall(r"<td[^>]*>(.*?)</td>", row)
     assert cells == ["<b>svg_prime:x.pt</b>", "tabletop", "vp2 diagnose",
                      "1.420 [1.300, 1.550] on 64 clips", "median rank 3 of 51, top 10% on 75%",
-                     "41%", "50%"]  # fmt: skip
+                     "ρ +0.61, its best in the top 10% on 50%", "41%", "50%"]  # fmt: skip
+    # The conditioning cell carries its verdict (colour and the sentence on hover).
+    assert '<td class="diag-uses" title="predictions depend on the actions">1.420' in row
 
 
 def test_diagnosis_section_says_when_no_run_has_one(tmp_path):

@@ -24,7 +24,10 @@ thresholds (:mod:`vp2.benchmark.diagnose_verdicts`; ``docs/diagnose.md``):
 4. **γ · spread** of the scores and the effective sample size of MPPI's weights
    ``softmax(γ · score)`` (``N``: every candidate weighs the same and MPPI executes their mean);
    and the **direction** the weights move the plan in: the mean cosine between instances of
-   different tasks (near 1: the same direction whatever the goal).
+   different tasks (near 1: the same direction whatever the goal);
+5. the **agreement with the simulator**: the same candidates scored with the simulator's
+   futures (the oracle), Spearman's ρ between its scores and the model's, and whether its
+   best candidate is in the model's top tenth (the simulator's scores are cached on disk).
 
 The report's ``predicted_control_score`` is the success fraction the shipped predictor
 (:mod:`vp2.benchmark.diagnose_score`, fitted on models whose control runs were measured)
@@ -51,6 +54,7 @@ from vp2.benchmark.config import RunConfig
 from vp2.benchmark.diagnose_measures import (
     conditioning_errors,
     held_out_clips,
+    oracle_cache_dir,
     probe_instance,
     ratio_statistics,
 )
@@ -110,6 +114,8 @@ class DiagnoseConfig:
             (0: skip the planning measures).
         num_samples: Planner samples (candidates) per planning step.
         seed: Control-run seed of the probed trials; also seeds the clip choice.
+        oracle_agreement: Also score the probed candidates with the simulator (the oracle)
+            and measure how the model's ranking agrees with it (cached on disk).
         device: Torch device (``None``: CUDA if available, else CPU).
         progress: Show a progress bar.
     """
@@ -124,6 +130,7 @@ class DiagnoseConfig:
     instances_per_task: int = 2
     num_samples: int = spec.MAIN_JOB_NUM_SAMPLES
     seed: int = 0
+    oracle_agreement: bool = True
     device: str | None = None
     progress: bool = True
 
@@ -251,8 +258,13 @@ def diagnose_model(config: DiagnoseConfig) -> dict[str, Any]:
         device=device,
     )
     identity = model_identity(parsed, config.model_args, model)
-    model_s = time.perf_counter() - start
     state_model = bool(getattr(model, "needs_simulator_state", False))
+    simulator = None
+    if instances and config.oracle_agreement and not state_model:
+        simulator = resolve_model(
+            "simulator", {}, env=env, action_dim=int(env_class(env).action_dim), device=device
+        )
+    model_s = time.perf_counter() - start
     calls = 2 * config.sampling_seeds if data is not None and not state_model else 0
     bar = tqdm(total=calls + len(instances), unit="step", desc="vp2 diagnose",
                disable=not config.progress)
@@ -276,16 +288,19 @@ def diagnose_model(config: DiagnoseConfig) -> dict[str, Any]:
         for instance in instances:
             bar.set_postfix(instance=instance.key)
             rows.append(
-                probe_instance(model, instance, config.num_samples, config.seed, device)
+                probe_instance(model, instance, config.num_samples, config.seed, device,
+                               simulator=simulator, cache=oracle_cache_dir())  # fmt: skip
             )
             bar.update(1)
         timing["planning_s"] = round(time.perf_counter() - t0, 2)
+        timing["oracle_s"] = round(sum(r["oracle_seconds"] for r in rows), 2)
     finally:
         bar.close()
-        close = getattr(model, "close", None)
-        if callable(close):
-            close()
-    del model
+        for used in (model, simulator):
+            close = getattr(used, "close", None)
+            if callable(close):
+                close()
+    del model, simulator
     if device.type == "cuda":
         torch.cuda.empty_cache()
     report: dict[str, Any] = {

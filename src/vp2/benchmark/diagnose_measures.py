@@ -9,7 +9,11 @@
   and the model and the task's cost score the batch twice, with two model seeds. Per instance:
   the scripted plan's rank, the repeatability of the ranking (Spearman's ρ between the two
   scorings), γ · the scores' spread, the effective sample size of MPPI's weights, and the
-  direction in which the weights move the plan.
+  direction in which the weights move the plan. Given the simulator (the oracle), also its
+  **agreement** with the model (:func:`simulator_agreement`): Spearman's ρ between the model's
+  and the simulator's scores of the same candidates, and whether the candidate the simulator
+  scores best is in the model's top tenth. The simulator's scores do not depend on the model,
+  so they are cached on disk (:func:`oracle_cache_dir`).
 * :func:`spearman`, :func:`effective_sample_size`, :func:`cross_task_cosine`: the statistics.
 
 Nothing here decides what a number means: the thresholds and verdicts are in
@@ -18,7 +22,11 @@ Nothing here decides what a number means: the thresholds and verdicts are in
 
 from __future__ import annotations
 
+import hashlib
+import json
+import logging
 import math
+import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -27,6 +35,7 @@ from typing import Any
 import numpy as np
 import torch
 
+import vp2
 from vp2 import spec
 from vp2.benchmark.trial import goal_image_at, trial_seed
 from vp2.data.loader import ClipDataset
@@ -36,6 +45,9 @@ from vp2.planning.agent import PlanningAgent, frames_to_tensor
 from vp2.planning.config import PlannerConfig
 from vp2.planning.optimizers.mppi import mppi_weights
 from vp2.planning.samplers import broadcast_std
+from vp2.utils.io import atomic_path
+
+log = logging.getLogger(__name__)
 
 #: A pixel "changes" when its true value moves more than this between the last context frame
 #: and a future frame (any channel); the static background dilutes the plain MSE.
@@ -44,6 +56,8 @@ MOVING_PIXEL = 0.05
 BOOTSTRAP_RESAMPLES = 2000
 #: Action dimensions whose net motion gives the plan's direction: x, y, z.
 DIRECTION_DIMS = 3
+#: The simulator's best candidate counts as "in the model's top" within this fraction.
+AGREEMENT_TOP_FRACTION = 0.10
 
 
 # --------------------------------------------------------------------------- held-out clips
@@ -218,10 +232,13 @@ def scripted_plan(actions: np.ndarray, horizon: int, action_dim: int) -> torch.T
     return torch.as_tensor(np.clip(plan, -1.0, 1.0), dtype=torch.float32)
 
 
-def first_step_context(instance: TaskInstance, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def first_step_context(
+    instance: TaskInstance, size: int, executed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What a trial's first planning step sees: the goal image, the two frames (the initial one
     and the one after the zero action, SPEC §4) ``(2, size, size, 3)`` uint8, and the
-    simulator state then."""
+    simulator state then. ``executed > 0``: after that many of the instance's scripted actions
+    too (the last two frames; a point further along the scripted path)."""
     env = instance.make_env(observation_size=None)
     try:
         goal = goal_image_at(instance, env, size)
@@ -230,10 +247,85 @@ def first_step_context(instance: TaskInstance, size: int) -> tuple[np.ndarray, n
         frames = [env.render(size)]
         env.step(np.zeros(env.action_dim))
         frames.append(env.render(size))
+        for action in instance.actions[:executed]:
+            env.step(np.asarray(action, dtype=np.float64))
+            frames.append(env.render(size))
         state = env.get_state()
     finally:
         env.close()
-    return goal, np.stack(frames), state
+    return goal, np.stack(frames[-2:]), state
+
+
+def oracle_cache_dir() -> Path:
+    """``$VP2_CACHE_DIR/diagnose-oracle`` if set, else ``~/.cache/vp2/diagnose-oracle``: the
+    simulator's scores of probed candidates, one ``.npy`` file per instance, seed and batch."""
+    root = os.environ.get("VP2_CACHE_DIR")
+    base = Path(root) if root else Path.home() / ".cache" / "vp2"
+    return base / "diagnose-oracle"
+
+
+def simulator_scores(
+    simulator: Any,
+    instance: TaskInstance,
+    batch: torch.Tensor,
+    context: dict[str, Any],
+    seed: int,
+    num_samples: int,
+    device: torch.device,
+    cache: Path | None = None,
+) -> np.ndarray:
+    """The task's cost of each candidate of ``batch`` under the simulator's futures (higher is
+    better), from the planning step ``context`` (``goal``, ``frames``, ``state``,
+    ``last_action``) of the trial ``(instance, seed)``.
+
+    With ``cache`` (a folder), the scores are read from there when the same instance, seed,
+    planner and cost (classifier file included), rendering, vp2 version and batch were scored
+    before, and written there otherwise; a cache that cannot be written is skipped (debug log).
+    """
+    from vp2.envs.render_specs import render_fingerprint
+
+    agent = PlanningAgent(simulator, PlannerConfig(num_samples=num_samples), "auto", device=device)
+    agent.reset(instance.task, context["goal"], trial_seed(instance.task, instance.index, seed))
+    path = None
+    if cache is not None:
+        key = {
+            "instance": instance.fingerprint, "seed": seed, "agent": agent.describe(),
+            "render": render_fingerprint(instance.task.split("/", 1)[0]), "vp2": vp2.__version__,
+            "last_action": [float(v) for v in context["last_action"]],
+        }  # fmt: skip
+        digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode())
+        digest.update(batch.detach().cpu().numpy().astype(np.float32).tobytes())
+        path = cache / f"{digest.hexdigest()[:40]}.npy"
+        if path.is_file():
+            return np.load(path)
+    agent.model.set_simulator_state(instance.env_meta, context["state"])
+    frames = frames_to_tensor(context["frames"][-agent.num_context :], agent.device)
+    last = torch.as_tensor(context["last_action"], dtype=torch.float32, device=agent.device)
+    with torch.no_grad():
+        scores = agent.objective(frames, last)(batch.to(agent.device)).double().cpu().numpy()
+    if path is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_path(path) as tmp, open(tmp, "wb") as f:
+                np.save(f, scores)
+        except OSError as exc:
+            log.debug("simulator scores not cached at %s: %s", path, exc)
+    return scores
+
+
+def simulator_agreement(model_scores: np.ndarray, oracle_scores: np.ndarray) -> dict[str, Any]:
+    """How the model's scores of the candidates agree with the simulator's: Spearman's ρ (0
+    where the model scores every candidate the same: it orders nothing) and the model's rank
+    of the simulator's best candidate (ties count against it: the number of candidates the
+    model scores at least as high), and whether that rank is in the top
+    :data:`AGREEMENT_TOP_FRACTION`."""
+    top = max(1, int(AGREEMENT_TOP_FRACTION * len(model_scores)))
+    best = int(np.argmax(oracle_scores))
+    rank = int((model_scores >= model_scores[best]).sum())
+    rho = spearman(model_scores, oracle_scores)
+    if rho is None and np.ptp(model_scores) == 0:
+        rho = 0.0
+    return {"oracle_rho": rho, "oracle_best_rank": rank, "oracle_best_in_top": rank <= top}
 
 
 def probe_instance(
@@ -243,9 +335,12 @@ def probe_instance(
     seed: int,
     device: torch.device,
     cost_mode: str = "auto",
+    simulator: Any = None,
+    cache: Path | None = None,
 ) -> dict[str, Any]:
     """The first planning step of the trial ``(instance, seed)``: its candidates and the
-    scripted plan scored twice (see the module docstring).
+    scripted plan scored twice (see the module docstring); with ``simulator`` (the oracle
+    model), scored by it too (``cache``: see :func:`simulator_scores`).
 
     Returns:
         One row: ``task``, ``instance``, ``cost``, ``scripted_actions`` (how many the instance
@@ -253,7 +348,9 @@ def probe_instance(
         instance stores no scripted actions), ``of``, ``repeat_rho`` (``None``: the scores are
         constant), ``gamma``, ``score_spread``, ``gamma_spread``, ``ess``, ``shift`` (the net
         x/y/z motion by which MPPI's weights move the plan away from the samples' plain mean;
-        ``None`` when the weights are equal), ``seconds``.
+        ``None`` when the weights are equal), ``seconds``; and ``oracle_rho``,
+        ``oracle_best_rank``, ``oracle_best_in_top`` (:func:`simulator_agreement`; ``None``
+        without ``simulator``) and ``oracle_seconds``.
     """
     agent = PlanningAgent(model, PlannerConfig(num_samples=num_samples), cost_mode, device=device)
     goal, frames, state = first_step_context(instance, agent.image_size)
@@ -282,6 +379,16 @@ def probe_instance(
     motion = candidates[:, :, :DIRECTION_DIMS].sum(dim=1).double().cpu().numpy()  # (N, 3)
     shift = weights @ motion - motion.mean(axis=0)
     flat = np.ptp(scores) == 0 or float(np.linalg.norm(shift)) < 1e-9
+    agreement: dict[str, Any] = dict.fromkeys(("oracle_rho", "oracle_best_rank", "oracle_best_in_top"))
+    oracle_seconds = 0.0
+    if simulator is not None:
+        start = time.perf_counter()
+        context = {"goal": goal, "frames": frames, "state": state,
+                   "last_action": np.zeros(agent.action_dim)}  # fmt: skip
+        oracle = simulator_scores(simulator, instance, batch, context, seed, num_samples, device,
+                                  cache)  # fmt: skip
+        agreement = simulator_agreement(scores, oracle[:num_samples])
+        oracle_seconds = time.perf_counter() - start
     return {
         "task": instance.task,
         "instance": instance.index,
@@ -296,4 +403,6 @@ def probe_instance(
         "ess": effective_sample_size(weights),
         "shift": None if flat else [float(v) for v in shift],
         "seconds": round(seconds, 3),
+        **agreement,
+        "oracle_seconds": round(oracle_seconds, 3),
     }

@@ -33,6 +33,7 @@ FEATURES: tuple[str, ...] = (
     "scripted_rank",  # 1 - (median rank - 1) / (candidates - 1): 1 = always the favourite
     "repeatability",  # median Spearman of the ranking across model noise (0 if undefined)
     "steering",  # 1 - exp(-median gamma * spread): 0 = flat scores, MPPI executes the mean
+    "oracle_agreement",  # median Spearman of the model's and the simulator's scores (>= 0)
 )
 #: Why there is no score when vp2 ships no predictor.
 NO_PREDICTOR = ("no predictor asset (vp2/assets/diagnose_predictor.json); fit one with "
@@ -63,6 +64,9 @@ def features(report: Mapping[str, Any]) -> dict[str, float]:
         "repeatability": max(0.0, _num((plan.get("repeatability") or {}).get("median_rho"))),
         "steering": 1.0
         - math.exp(-max(0.0, _num((plan.get("spread") or {}).get("median_gamma_spread")))),
+        "oracle_agreement": max(
+            0.0, _num((plan.get("oracle_agreement") or {}).get("median_rho"))
+        ),
     }
 
 
@@ -178,6 +182,12 @@ def predicted_score(
     plan = (report.get("planning") or {}).get("scripted_plan") or {}
     if not plan.get("instances"):
         return None, "not predicted: the planning measures were skipped (--instances-per-task 0)"
+    if list(predictor.get("features") or []) != list(FEATURES):
+        return None, (
+            f"not predicted: the shipped predictor was fitted on other measures "
+            f"({', '.join(predictor.get('features') or [])}) than this vp2 reports; refit it "
+            "with python -m benchmarks.studies.diagnose_validation --write-asset"
+        )
     validation = predictor.get("validation") or {}
     rho = validation.get("held_out_spearman")
     note = (

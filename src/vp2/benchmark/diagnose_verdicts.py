@@ -10,6 +10,7 @@ measure                       statuses
 ``repeatability``             ``repeats``, ``partial``, ``noise``, ``undefined``, ``skipped``
 ``spread``                    ``steers``, ``flat``, ``skipped``
 ``direction``                 ``varies``, ``biased``, ``undefined``, ``skipped``
+``oracle_agreement``          ``agrees``, ``partial``, ``disagrees``, ``skipped``
 ============================  =================================================================
 """
 
@@ -20,7 +21,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from vp2 import spec
-from vp2.benchmark.diagnose_measures import cross_task_cosine
+from vp2.benchmark.diagnose_measures import AGREEMENT_TOP_FRACTION, cross_task_cosine
 
 #: A conditioning ratio whose 95% interval holds 1 and stays below WEAK_RATIO: "does not
 #: depend on the actions"; one that holds 1 and reaches WEAK_RATIO: "inconclusive" (too few
@@ -38,6 +39,10 @@ TOP_FRACTION = 0.10
 #: judged only with shifts on at least BIAS_MIN_TASKS tasks.
 BIAS_COSINE = 0.7
 BIAS_MIN_TASKS = 3
+#: Median Spearman ρ between the model's and the simulator's scores of the candidates: from
+#: AGREE_FIRM on the model ranks them much as the simulator does, below AGREE_NONE not at all.
+AGREE_NONE = 0.2
+AGREE_FIRM = 0.5
 
 
 def _median(values: Sequence[float]) -> float | None:
@@ -51,6 +56,7 @@ def summarize_planning(rows: Sequence[dict[str, Any]], num_samples: int) -> dict
     top = max(1, int(TOP_FRACTION * (num_samples + 1)))
     rhos = [r["repeat_rho"] for r in rows if r["repeat_rho"] is not None]
     cosine, pairs = cross_task_cosine(rows)
+    agreed = [r for r in rows if r.get("oracle_rho") is not None]
     return {
         "scripted_plan": {
             "instances": len(ranks),
@@ -74,6 +80,13 @@ def summarize_planning(rows: Sequence[dict[str, Any]], num_samples: int) -> dict
             "mean_cross_task_cosine": cosine,
             "pairs": pairs,
             "tasks": len({r["task"] for r in rows if r["shift"] is not None}),
+        },
+        "oracle_agreement": {
+            "instances": len(agreed),
+            "median_rho": _median([r["oracle_rho"] for r in agreed]),
+            "best_in_top_fraction": (
+                sum(bool(r["oracle_best_in_top"]) for r in agreed) / len(agreed) if agreed else None
+            ),
         },
     }
 
@@ -109,8 +122,9 @@ def verdicts(report: dict[str, Any]) -> dict[str, dict[str, str]]:
     out = {"action_conditioning": conditioning_verdict(report["action_conditioning"])}
     if not planning["instances"]:
         skipped = {"status": "skipped", "text": "not measured: no instance probed"}
-        return out | dict.fromkeys(("scripted_plan", "repeatability", "spread", "direction"),
-                                   skipped)
+        return out | dict.fromkeys(
+            ("scripted_plan", "repeatability", "spread", "direction", "oracle_agreement"), skipped
+        )
     scripted = planning["scripted_plan"]
     if not scripted["instances"]:
         out["scripted_plan"] = {"status": "skipped",
@@ -152,6 +166,21 @@ def verdicts(report: dict[str, Any]) -> dict[str, dict[str, str]]:
                             "text": "a bias toward one direction regardless of the goal"}
     else:
         out["direction"] = {"status": "varies", "text": "the planned direction changes with the task"}
+    agree = planning.get("oracle_agreement") or {}
+    rho = agree.get("median_rho")
+    if not agree.get("instances") or rho is None:
+        out["oracle_agreement"] = {"status": "skipped", "text": "not measured: no simulator scores "
+                                   "(--no-oracle-agreement, or a model that is the simulator)"}
+    elif rho >= AGREE_FIRM:
+        out["oracle_agreement"] = {"status": "agrees", "text": "the model ranks the candidates "
+                                   "much as the simulator does"}
+    elif rho >= AGREE_NONE:
+        out["oracle_agreement"] = {"status": "partial", "text": "the model ranks the candidates "
+                                   "only partly as the simulator does"}
+    else:
+        out["oracle_agreement"] = {"status": "disagrees", "text": "the model's ranking of the "
+                                   "candidates is not the simulator's: its favourites are not "
+                                   "what would happen"}
     return out
 
 
@@ -203,6 +232,16 @@ def format_report(report: dict[str, Any]) -> list[str]:
         f"direction: mean cosine {_f(d['mean_cross_task_cosine'], '+.2f')} between plan shifts "
         f"of different tasks ({d['tasks']} tasks) -> {v['direction']['text']}"
     )
+    a = p.get("oracle_agreement") or {}
+    if a.get("instances"):
+        lines.append(
+            f"agreement with the simulator: Spearman {_f(a['median_rho'], '+.2f')} (median over "
+            f"{a['instances']} instances), its best candidate in the model's top "
+            f"{AGREEMENT_TOP_FRACTION:.0%} on {round(a['best_in_top_fraction'] * a['instances'])} "
+            f"-> {v['oracle_agreement']['text']}"
+        )
+    elif "oracle_agreement" in v:
+        lines.append(f"agreement with the simulator: {v['oracle_agreement']['text']}")
     score = report.get("predicted_control_score")
     reason = report["predicted_control_score_reason"]
     lines.append(

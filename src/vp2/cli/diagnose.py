@@ -16,7 +16,8 @@ DESCRIPTION = (
     "Measures, without a control run, what decides whether a model can plan: whether its "
     "predictions depend on the actions (held-out clips), and at the first planning step of a "
     "few suite instances where the scripted plan ranks under its cost, whether the ranking "
-    "repeats across the model's noise and whether the scores move MPPI's weights. Prints a "
+    "repeats across the model's noise, whether the scores move MPPI's weights, and whether the "
+    "model ranks the candidates as the simulator does. Prints a "
     "verdict per measure and writes a JSON report (docs/diagnose.md)."
 )
 
@@ -50,6 +51,12 @@ FLAGS: dict[str, Flag | None] = {
                                "planning step (0: skip; default: %(default)s)"),
     "num_samples": Flag(help="planner samples per step (default: %(default)s)"),
     "seed": Flag(help="control-run seed of the probed trials and seed of the clip choice"),
+    "oracle_agreement": Flag(
+        "--no-oracle-agreement",
+        negate=True,
+        help="skip scoring the probed candidates with the simulator (the agreement measure); "
+        "its scores are cached under $VP2_CACHE_DIR/diagnose-oracle",
+    ),
     "device": Flag(help="torch device (default: CUDA if available)"),
     "progress": Flag("--no-progress", negate=True, help="no progress bar"),
     "out": Flag(

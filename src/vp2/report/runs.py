@@ -63,7 +63,9 @@ def read_diagnosis(run_dir: PathLike) -> list[dict[str, Any]]:
 
     Each entry: ``env``, ``source`` (``"vp2 diagnose"`` or ``"vp2 run pre-check"``),
     ``conditioning`` (``ratio``, ``ci``, ``clips``, ``status``, ``text``, or ``None``),
-    ``scripted`` (``median_rank``, ``of``, ``top_fraction``, or ``None``), ``predicted`` and
+    ``scripted`` (``median_rank``, ``of``, ``top_fraction``, or ``None``), ``agreement``
+    (with the simulator: ``instances``, ``median_rho``, ``best_in_top_fraction``, or ``None``),
+    ``predicted`` and
     ``predicted_reason`` (``None`` for a pre-check).
     """
     path = Path(run_dir)
@@ -71,8 +73,9 @@ def read_diagnosis(run_dir: PathLike) -> list[dict[str, Any]]:
     if full.is_file():
         report = json.loads(full.read_text())
         cond = report.get("action_conditioning") or {}
-        verdict = (report.get("verdicts") or {}).get("conditioning") or {}
+        verdict = (report.get("verdicts") or {}).get("action_conditioning") or {}
         scripted = (report.get("planning") or {}).get("scripted_plan") or {}
+        agreement = (report.get("planning") or {}).get("oracle_agreement") or {}
         return [{
             "env": report.get("env"),
             "source": "vp2 diagnose",
@@ -81,6 +84,7 @@ def read_diagnosis(run_dir: PathLike) -> list[dict[str, Any]]:
                 "status": verdict.get("status"), "text": verdict.get("text"),
             },
             "scripted": scripted if scripted.get("instances") else None,
+            "agreement": agreement if agreement.get("instances") else None,
             "predicted": report.get("predicted_control_score"),
             "predicted_reason": report.get("predicted_control_score_reason"),
         }]  # fmt: skip
@@ -98,6 +102,7 @@ def read_diagnosis(run_dir: PathLike) -> list[dict[str, Any]]:
                 "status": verdict.get("status"), "text": verdict.get("text"),
             },
             "scripted": None,
+            "agreement": None,
             "predicted": None,
             "predicted_reason": None,
         })  # fmt: skip

@@ -291,6 +291,12 @@ def diagnosis_section(runs: Sequence[RunView]) -> str:
                 f"median rank {sp.get('median_rank')} of {sp.get('of')}, top 10% on "
                 f"{100 * (sp.get('top_fraction') or 0):.0f}%" if sp else "not measured"
             )
+            ag = d.get("agreement")
+            agreement = (
+                f"ρ {ag['median_rho']:+.2f}, its best in the top 10% on "
+                f"{100 * (ag.get('best_in_top_fraction') or 0):.0f}%"
+                if ag and ag.get("median_rho") is not None else "not measured"
+            )  # fmt: skip
             pred = d.get("predicted")
             pred_cell = (
                 f"{100 * pred:.0f}%" if pred is not None
@@ -299,6 +305,7 @@ def diagnosis_section(runs: Sequence[RunView]) -> str:
             rows.append(
                 f"<tr><td><b>{escape(r.label)}</b></td><td>{escape(env)}</td>"
                 f"<td>{escape(str(d.get('source')))}</td>{cond_cell}<td>{escape(scripted)}</td>"
+                f"<td>{escape(agreement)}</td>"
                 f'<td class="num">{pred_cell}</td>'
                 f'<td class="num">{_env_success(r, env)}</td></tr>'
             )
@@ -320,6 +327,7 @@ def diagnosis_section(runs: Sequence[RunView]) -> str:
         intro
         + '<div class="wide"><table class="diagnosis"><thead><tr><th>model</th><th>env</th>'
         "<th>from</th><th>action conditioning</th><th>scripted plan</th>"
+        "<th>agreement with the simulator</th>"
         "<th>predicted success</th><th>measured success</th></tr></thead>"
         f"<tbody>{''.join(rows)}</tbody></table></div>"
     )
