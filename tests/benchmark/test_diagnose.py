@@ -364,3 +364,17 @@ def test_the_simulators_scores_are_cached_by_instance_seed_and_batch(tmp_path):
     np.testing.assert_allclose(other, fresh[::-1])  # another batch: scored anew
     assert len(list(cache.glob("*.npy"))) == 2
     simulator.close()
+
+
+def test_the_default_robodesk_probes_read_the_shipped_simulator_scores(tmp_path, monkeypatch):
+    # vp2/assets/diagnose_oracle: a first diagnosis on a machine does not pay for the simulator.
+    from vp2.benchmark.diagnose_measures import SHIPPED_ORACLE_SCORES
+
+    monkeypatch.setenv("VP2_CACHE_DIR", str(tmp_path))
+    report = diagnose_model(DiagnoseConfig(model="repeat_last_frame", env="robodesk", clips=0,
+                                           instances_per_task=1, progress=False))  # fmt: skip
+    rows = report["planning"]["instances"]
+    assert len(rows) == 7 and all(r["oracle_rho"] == 0.0 for r in rows)
+    assert report["timing"]["oracle_s"] < 1.0  # read, not simulated
+    assert not (tmp_path / "diagnose-oracle").exists()  # nothing had to be computed
+    assert len(list(SHIPPED_ORACLE_SCORES.glob("*.npy"))) == 14  # 2 instances x 7 tasks
