@@ -366,7 +366,7 @@ def test_the_simulators_scores_are_cached_by_instance_seed_and_batch(tmp_path):
     simulator.close()
 
 
-def test_the_default_robodesk_probes_read_the_shipped_simulator_scores(tmp_path, monkeypatch):
+def test_the_default_probes_read_the_shipped_simulator_scores(tmp_path, monkeypatch):
     # vp2/assets/diagnose_oracle: a first diagnosis on a machine does not pay for the simulator.
     from vp2.benchmark.diagnose_measures import SHIPPED_ORACLE_SCORES
 
@@ -377,4 +377,5 @@ def test_the_default_robodesk_probes_read_the_shipped_simulator_scores(tmp_path,
     assert len(rows) == 7 and all(r["oracle_rho"] == 0.0 for r in rows)
     assert report["timing"]["oracle_s"] < 1.0  # read, not simulated
     assert not (tmp_path / "diagnose-oracle").exists()  # nothing had to be computed
-    assert len(list(SHIPPED_ORACLE_SCORES.glob("*.npy"))) == 14  # 2 instances x 7 tasks
+    # 2 instances x (7 RoboDesk + 4 tabletop tasks)
+    assert len(list(SHIPPED_ORACLE_SCORES.glob("*.npy"))) == 22

@@ -58,9 +58,9 @@ BOOTSTRAP_RESAMPLES = 2000
 DIRECTION_DIMS = 3
 #: The simulator's best candidate counts as "in the model's top" within this fraction.
 AGREEMENT_TOP_FRACTION = 0.10
-#: The simulator's scores of `vp2 diagnose`'s default RoboDesk probes (2 instances per task,
-#: seed 0, 50 samples), shipped so that a first diagnosis does not pay for them; the files of
-#: ``VP2_CACHE_DIR=DIR vp2 diagnose --model repeat_last_frame --env robodesk``'s
+#: The simulator's scores of `vp2 diagnose`'s default probes on both environments (2 instances
+#: per task, seed 0, 50 samples), shipped so that a first diagnosis does not pay for them; the
+#: files of ``VP2_CACHE_DIR=DIR vp2 diagnose --model repeat_last_frame --env ENV``'s
 #: ``DIR/diagnose-oracle`` (docs/diagnose.md).
 SHIPPED_ORACLE_SCORES = Path(__file__).resolve().parents[1] / "assets" / "diagnose_oracle"
 
@@ -285,7 +285,7 @@ def simulator_scores(
 
     With ``cache`` (a folder), the scores are read from there when the same instance, seed,
     planner and cost (classifier file included), rendering, vp2 version and batch were scored
-    before, else from :data:`SHIPPED_ORACLE_SCORES` (the default RoboDesk probes), else
+    before, else from :data:`SHIPPED_ORACLE_SCORES` (the default probes), else
     computed and written there; a cache that cannot be written is skipped (debug log).
     """
     from vp2.envs.render_specs import render_fingerprint
