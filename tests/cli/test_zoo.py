@@ -44,6 +44,10 @@ def test_list_shows_the_shipped_model(capsys, monkeypatch):
     assert row.split()[3:] == ["tabletop", "1.65", "M", "1.63x", "[1.50,", "1.76]", "lpips",
                                "ssim", "psnr", "mse", "tabletop", "0/8", "(0%)"]
     assert get_card("svg_prime-tiny-tabletop").checkpoint_path.name == "svg_prime_tiny_tabletop.pt"
+    # FitVid after 60 core-minutes of the RoboDesk zoo training: no control run yet.
+    (row,) = [line for line in out.splitlines() if line.startswith("fitvid-robodesk-60min ")]
+    assert row.split()[1:] == ["fitvid", "mini", "robodesk", "1.52", "M", "1.23x", "[1.14,",
+                               "1.33]", "lpips", "ssim", "psnr", "mse", "not", "measured"]
     # A second tabletop family: FitVid after 15 core-minutes of the zoo training.
     (row,) = [line for line in out.splitlines() if line.startswith("fitvid-tabletop-15min ")]
     assert row.split()[1:] == ["fitvid", "mini", "tabletop", "1.52", "M", "1.22x", "[1.16,",
@@ -68,7 +72,7 @@ def test_show_prints_the_whole_card(capsys):
 def test_unknown_names_are_errors_that_list_the_zoo(capsys, tmp_path):
     code, _, err = _vp2(capsys, "zoo", "show", "nope")
     assert code == 2 and "vp2 zoo: error: no model 'nope' in the zoo at" in err
-    assert f"known: fitvid-tabletop-15min, svg_prime-robodesk-30min, {SHIPPED}, svg_prime-tiny-tabletop;" in err
+    assert f"known: fitvid-robodesk-60min, fitvid-tabletop-15min, svg_prime-robodesk-30min, {SHIPPED}, svg_prime-tiny-tabletop;" in err
     code, _, err = _vp2(capsys, "run", "--model", "zoo:nope", "--out", str(tmp_path / "r"),
                         "--no-progress")
     assert code == 2 and "vp2 run: error: model 'zoo:nope': no model 'nope'" in err

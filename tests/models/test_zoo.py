@@ -91,7 +91,7 @@ def test_every_shipped_card_is_complete_and_written_as_read():
 
 
 def test_an_unknown_name_lists_the_known_ones(tmp_path):
-    with pytest.raises(ZooError, match=rf"no model 'nope' in the zoo at .*known: fitvid-tabletop-15min, svg_prime-robodesk-30min, {SHIPPED}, svg_prime-tiny-tabletop;"):
+    with pytest.raises(ZooError, match=rf"no model 'nope' in the zoo at .*known: fitvid-robodesk-60min, fitvid-tabletop-15min, svg_prime-robodesk-30min, {SHIPPED}, svg_prime-tiny-tabletop;"):
         get_card("nope")
     with pytest.raises(ZooError, match="no model '../x' in the zoo"):
         get_card("../x")
