@@ -44,10 +44,11 @@ def test_list_shows_the_shipped_model(capsys, monkeypatch):
     assert row.split()[3:] == ["tabletop", "1.65", "M", "1.63x", "[1.50,", "1.76]", "lpips",
                                "ssim", "psnr", "mse", "tabletop", "0/8", "(0%)"]
     assert get_card("svg_prime-tiny-tabletop").checkpoint_path.name == "svg_prime_tiny_tabletop.pt"
-    # FitVid after 60 core-minutes of the RoboDesk zoo training: no control run yet.
+    # FitVid after 60 core-minutes of the RoboDesk zoo training.
     (row,) = [line for line in out.splitlines() if line.startswith("fitvid-robodesk-60min ")]
     assert row.split()[1:] == ["fitvid", "mini", "robodesk", "1.52", "M", "1.23x", "[1.14,",
-                               "1.33]", "lpips", "ssim", "psnr", "mse", "not", "measured"]
+                               "1.33]", "lpips", "ssim", "psnr", "mse", "robodesk", "1/7",
+                               "(14%)"]
     # A second tabletop family: FitVid after 15 core-minutes of the zoo training.
     (row,) = [line for line in out.splitlines() if line.startswith("fitvid-tabletop-15min ")]
     assert row.split()[1:] == ["fitvid", "mini", "tabletop", "1.52", "M", "1.22x", "[1.16,",
