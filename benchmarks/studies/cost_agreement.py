@@ -39,21 +39,19 @@ from tqdm.auto import tqdm
 
 from benchmarks import common
 from vp2.benchmark.diagnose_measures import (
-    first_step_context,
+    draw_batch,
     oracle_cache_dir,
-    scripted_plan,
+    reset_agent,
     simulator_agreement,
     simulator_scores,
     spearman,
+    step_context,
+    step_objective,
 )
 from vp2.benchmark.model_spec import resolve_model
 from vp2.benchmark.results import read_trials
-from vp2.benchmark.trial import trial_seed
 from vp2.data.suite import TaskInstance, TaskSuite
 from vp2.envs import env_class
-from vp2.planning.agent import PlanningAgent, frames_to_tensor
-from vp2.planning.config import PlannerConfig
-from vp2.planning.samplers import broadcast_std
 from vp2.utils.io import write_json_atomic
 
 #: The points of an instance's scripted path that are probed: after none, and after half, of
@@ -63,33 +61,16 @@ POINTS = ("start", "mid-push")
 IMAGE_SIZE = 64
 
 
-def point(instance: TaskInstance, executed: int) -> dict[str, Any]:
-    """The planning-step context after the zero action and ``executed`` scripted actions
-    (:func:`~vp2.benchmark.diagnose_measures.first_step_context`), with the last action and
-    the scripted actions still to come."""
-    goal, frames, state = first_step_context(instance, IMAGE_SIZE, executed)
-    last = instance.actions[executed - 1] if executed else np.zeros(instance.actions.shape[1])
-    return {"goal": goal, "frames": frames, "state": state, "last_action": last,
-            "rest": instance.actions[executed:]}  # fmt: skip
-
-
 def model_scores(
     model: Any, instance: TaskInstance, context: dict[str, Any], seed: int, num_samples: int,
     device: torch.device,
 ) -> tuple[np.ndarray, torch.Tensor]:
-    """The model's scores of the candidates the trial ``(instance, seed)`` draws at this point
-    plus the rest of the scripted plan (last), and that batch."""
-    agent = PlanningAgent(model, PlannerConfig(num_samples=num_samples), "auto", device=device)
-    agent.reset(instance.task, context["goal"], trial_seed(instance.task, instance.index, seed))
-    optimizer = agent.optimizer
-    std = broadcast_std(optimizer.sigma, agent.plan)
-    candidates = optimizer.sampler.sample(agent.plan, std, num_samples, agent.generator)
-    rest = scripted_plan(context["rest"], agent.horizon, agent.action_dim).to(candidates)
-    batch = torch.cat([candidates, rest[None]])
-    frames = frames_to_tensor(context["frames"][-agent.num_context :], agent.device)
-    last = torch.as_tensor(context["last_action"], dtype=torch.float32, device=agent.device)
+    """The model's scores of the candidates the trial ``(instance, seed)`` draws at the
+    planning step ``context`` plus the rest of the scripted plan (last), and that batch."""
+    agent = reset_agent(model, instance, context["goal"], seed, num_samples, device)
+    _, batch = draw_batch(agent, context["rest"], num_samples)
     with torch.no_grad():
-        return agent.objective(frames, last)(batch).double().cpu().numpy(), batch
+        return step_objective(agent, instance, context)(batch).double().cpu().numpy(), batch
 
 
 def success_of(run_dirs: Sequence[str | Path]) -> tuple[int, int]:
@@ -126,7 +107,7 @@ def run(
     for instance in instances:
         for name in POINTS:
             executed = 0 if name == "start" else len(instance.actions) // 2
-            context = point(instance, executed)
+            context = step_context(instance, IMAGE_SIZE, executed)
             oracle_scores = None
             for label, model in loaded.items():
                 scores, batch = model_scores(model, instance, context, seed, num_samples, device)

@@ -36,21 +36,6 @@ from vp2.models.struct_vrnn import StructVRNN
 from vp2.utils.io import write_json_atomic
 
 
-def predicted_keypoints(model: StructVRNN, frames: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-    """The dynamics' keypoints for the future frames, ``(B, T, K, 3)``, from the prior's mean
-    (no sampling noise), with the context handled as :meth:`StructVRNN._predict` does."""
-    c, future = model.config.num_context, model.config.num_future
-    observed = model._detect(frames[:, :c]).flatten(2)
-    _, state = model.dynamics.step_core(observed[:, :-1], actions[:, : c - 1])
-    k_prev, out = observed[:, -1:], []
-    for t in range(c, c + future):
-        e, state = model.dynamics.step_core(k_prev, actions[:, t - 1 : t], state)
-        mu, _ = model._latent(model.dynamics.prior(e))
-        k_prev = model.dynamics.predict_keypoints(e, mu)
-        out.append(k_prev)
-    return torch.cat(out, 1).unflatten(-1, (-1, 3))
-
-
 def probe(model: StructVRNN, frames: torch.Tensor, actions: torch.Tensor) -> dict[str, Any]:
     """The three links' measurements on clips ``frames (N, C + T, 3, H, W)``, ``actions``."""
     if not isinstance(model, StructVRNN):
@@ -66,8 +51,8 @@ def probe(model: StructVRNN, frames: torch.Tensor, actions: torch.Tensor) -> dic
         own = model._render(detected, detected[:, 0], frames[:, 0])
         still = model._render(detected[:, :1].expand_as(detected), detected[:, 0], frames[:, 0])
         perm = torch.roll(torch.arange(len(frames)), 1)
-        true_k = predicted_keypoints(model, frames, actions)
-        swapped_k = predicted_keypoints(model, frames, actions[perm])
+        true_k = model.rollout_keypoints(frames[:, :c], actions)[0]  # the prior's mean
+        swapped_k = model.rollout_keypoints(frames[:, :c], actions[perm])[0]
         future = detected[:, c:]
     return {
         "clips": len(frames),

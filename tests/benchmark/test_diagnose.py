@@ -32,12 +32,12 @@ from vp2.benchmark.diagnose import (
 )
 from vp2.benchmark.diagnose_measures import (
     effective_sample_size,
-    first_step_context,
     rank_of_last,
     ratio_statistics,
     simulator_agreement,
     simulator_scores,
     spearman,
+    step_context,
 )
 from vp2.data.suite import TaskSuite
 from vp2.planning.config import PlannerConfig
@@ -346,8 +346,7 @@ def test_the_simulators_scores_are_cached_by_instance_seed_and_batch(tmp_path):
 
     (instance,) = TaskSuite.load(tiny_suite_path()).instances[:1]
     simulator = resolve_model("simulator", {}, env="tabletop", action_dim=4, device="cpu")
-    goal, frames, state = first_step_context(instance, 64)
-    context = {"goal": goal, "frames": frames, "state": state, "last_action": np.zeros(4)}
+    context = step_context(instance, 64)
     batch = torch.zeros(3, 10, 4)
     batch[1, :, 0] = 1.0  # the hand moves along x
     batch[2, :, 1] = 1.0  # ... along y
@@ -379,3 +378,20 @@ def test_the_default_probes_read_the_shipped_simulator_scores(tmp_path, monkeypa
     assert not (tmp_path / "diagnose-oracle").exists()  # nothing had to be computed
     # 2 instances x (7 RoboDesk + 4 tabletop tasks)
     assert len(list(SHIPPED_ORACLE_SCORES.glob("*.npy"))) == 22
+
+
+def test_a_step_context_along_the_scripted_path():
+    (instance,) = TaskSuite.load(None).select(["robodesk/push_red"], 1)
+    start = step_context(instance, 64)
+    assert start["frames"].shape == (2, 64, 64, 3) and start["frames"].dtype == np.uint8
+    assert not start["last_action"].any()
+    np.testing.assert_array_equal(start["rest"], instance.actions)
+    one = step_context(instance, 64, 1)  # its older frame is the start's newer one
+    np.testing.assert_array_equal(one["frames"][0], start["frames"][1])
+    np.testing.assert_array_equal(one["goal"], start["goal"])
+    half = len(instance.actions) // 2
+    mid = step_context(instance, 64, half)
+    np.testing.assert_array_equal(mid["last_action"], instance.actions[half - 1])
+    np.testing.assert_array_equal(mid["rest"], instance.actions[half:])
+    assert not np.array_equal(mid["frames"], start["frames"])  # the hand has moved
+

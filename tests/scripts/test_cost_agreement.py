@@ -5,12 +5,8 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
 import pytest
-from benchmarks.studies.cost_agreement import correlations, markdown, point, success_of
-
-from vp2.benchmark.diagnose_measures import first_step_context
-from vp2.data.suite import TaskSuite
+from benchmarks.studies.cost_agreement import correlations, markdown, success_of
 
 
 def _trials(path, successes):
@@ -38,17 +34,3 @@ def test_success_leaves_out_errors_and_correlations_rank_the_models(tmp_path):
     page = markdown({"models": summary, "correlations": correlations(summary)})
     assert "| c | +0.90 | 100% | +0.90 | 100% | 75% (4) |" in page
     assert "- start/median_rho: +1.00" in page
-
-
-def test_the_start_point_is_the_first_planning_step_and_mid_push_follows_the_script():
-    (instance,) = TaskSuite.load(None).select(["robodesk/push_red"], 1)
-    start = point(instance, 0)
-    goal, frames, state = first_step_context(instance, 64)
-    np.testing.assert_array_equal(start["frames"], frames)
-    np.testing.assert_array_equal(start["goal"], goal)
-    assert not start["last_action"].any() and len(start["rest"]) == len(instance.actions)
-    half = len(instance.actions) // 2
-    mid = point(instance, half)
-    np.testing.assert_array_equal(mid["last_action"], instance.actions[half - 1])
-    np.testing.assert_array_equal(mid["rest"], instance.actions[half:])
-    assert not np.array_equal(mid["frames"], frames)  # the hand has moved

@@ -26,7 +26,6 @@ import hashlib
 import json
 import logging
 import math
-import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -45,7 +44,7 @@ from vp2.planning.agent import PlanningAgent, frames_to_tensor
 from vp2.planning.config import PlannerConfig
 from vp2.planning.optimizers.mppi import mppi_weights
 from vp2.planning.samplers import broadcast_std
-from vp2.utils.io import atomic_path
+from vp2.utils.io import atomic_path, cache_dir
 
 log = logging.getLogger(__name__)
 
@@ -237,36 +236,74 @@ def scripted_plan(actions: np.ndarray, horizon: int, action_dim: int) -> torch.T
     return torch.as_tensor(np.clip(plan, -1.0, 1.0), dtype=torch.float32)
 
 
-def first_step_context(
-    instance: TaskInstance, size: int, executed: int = 0
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """What a trial's first planning step sees: the goal image, the two frames (the initial one
-    and the one after the zero action, SPEC §4) ``(2, size, size, 3)`` uint8, and the
-    simulator state then. ``executed > 0``: after that many of the instance's scripted actions
-    too (the last two frames; a point further along the scripted path)."""
+def step_context(instance: TaskInstance, size: int, executed: int = 0) -> dict[str, Any]:
+    """What a planning step of the trial on ``instance`` sees after the zero action (SPEC §4)
+    and the first ``executed`` scripted actions (0: the trial's first planning step).
+
+    Returns:
+        ``goal`` (the goal image), ``frames`` (the last two frames, ``(2, size, size, 3)``
+        uint8), ``state`` (the simulator state), ``last_action`` (the last executed action) and
+        ``rest`` (the scripted actions still to come).
+    """
     env = instance.make_env(observation_size=None)
     try:
         goal = goal_image_at(instance, env, size)
         env.reset_to(instance.init_state)
         env.set_goal(instance.goal_state)
+        last = np.zeros(env.action_dim)
         frames = [env.render(size)]
-        env.step(np.zeros(env.action_dim))
+        env.step(last)
         frames.append(env.render(size))
         for action in instance.actions[:executed]:
-            env.step(np.asarray(action, dtype=np.float64))
+            last = np.asarray(action, dtype=np.float64)
+            env.step(last)
             frames.append(env.render(size))
         state = env.get_state()
     finally:
         env.close()
-    return goal, np.stack(frames[-2:]), state
+    return {"goal": goal, "frames": np.stack(frames[-2:]), "state": state, "last_action": last,
+            "rest": instance.actions[executed:]}  # fmt: skip
+
+
+def reset_agent(
+    model: Any,
+    instance: TaskInstance,
+    goal: np.ndarray,
+    seed: int,
+    num_samples: int,
+    device: torch.device,
+    cost_mode: str = "auto",
+) -> PlanningAgent:
+    """A planning agent of ``model`` reset as the trial ``(instance, seed)`` resets it."""
+    agent = PlanningAgent(model, PlannerConfig(num_samples=num_samples), cost_mode, device=device)
+    agent.reset(instance.task, goal, trial_seed(instance.task, instance.index, seed))
+    return agent
+
+
+def step_objective(agent: PlanningAgent, instance: TaskInstance, context: dict[str, Any]) -> Any:
+    """The agent's objective (``candidates -> scores``) at the planning step ``context``
+    (:func:`step_context`); a model that predicts from the simulator state is put in it."""
+    if getattr(agent.model, "needs_simulator_state", False):
+        agent.model.set_simulator_state(instance.env_meta, context["state"])
+    frames = frames_to_tensor(context["frames"][-agent.num_context :], agent.device)
+    last = torch.as_tensor(context["last_action"], dtype=torch.float32, device=agent.device)
+    return agent.objective(frames, last)
+
+
+def draw_batch(agent: PlanningAgent, rest: np.ndarray, num_samples: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``num_samples`` candidates the agent's sampler draws at its current plan, and the
+    batch they make with the scripted plan ``rest`` appended last, ``(N + 1, T, A)``."""
+    optimizer = agent.optimizer
+    std = broadcast_std(optimizer.sigma, agent.plan)
+    candidates = optimizer.sampler.sample(agent.plan, std, num_samples, agent.generator)
+    scripted = scripted_plan(rest, agent.horizon, agent.action_dim).to(candidates)
+    return candidates, torch.cat([candidates, scripted[None]])
 
 
 def oracle_cache_dir() -> Path:
     """``$VP2_CACHE_DIR/diagnose-oracle`` if set, else ``~/.cache/vp2/diagnose-oracle``: the
     simulator's scores of probed candidates, one ``.npy`` file per instance, seed and batch."""
-    root = os.environ.get("VP2_CACHE_DIR")
-    base = Path(root) if root else Path.home() / ".cache" / "vp2"
-    return base / "diagnose-oracle"
+    return cache_dir("diagnose-oracle")
 
 
 def simulator_scores(
@@ -280,8 +317,8 @@ def simulator_scores(
     cache: Path | None = None,
 ) -> np.ndarray:
     """The task's cost of each candidate of ``batch`` under the simulator's futures (higher is
-    better), from the planning step ``context`` (``goal``, ``frames``, ``state``,
-    ``last_action``) of the trial ``(instance, seed)``.
+    better), at the planning step ``context`` (:func:`step_context`) of the trial
+    ``(instance, seed)``.
 
     With ``cache`` (a folder), the scores are read from there when the same instance, seed,
     planner and cost (classifier file included), rendering, vp2 version and batch were scored
@@ -290,8 +327,7 @@ def simulator_scores(
     """
     from vp2.envs.render_specs import render_fingerprint
 
-    agent = PlanningAgent(simulator, PlannerConfig(num_samples=num_samples), "auto", device=device)
-    agent.reset(instance.task, context["goal"], trial_seed(instance.task, instance.index, seed))
+    agent = reset_agent(simulator, instance, context["goal"], seed, num_samples, device)
     path = None
     if cache is not None:
         key = {
@@ -307,11 +343,9 @@ def simulator_scores(
         shipped = SHIPPED_ORACLE_SCORES / path.name
         if shipped.is_file():
             return np.load(shipped)
-    agent.model.set_simulator_state(instance.env_meta, context["state"])
-    frames = frames_to_tensor(context["frames"][-agent.num_context :], agent.device)
-    last = torch.as_tensor(context["last_action"], dtype=torch.float32, device=agent.device)
+    objective = step_objective(agent, instance, context)
     with torch.no_grad():
-        scores = agent.objective(frames, last)(batch.to(agent.device)).double().cpu().numpy()
+        scores = objective(batch.to(agent.device)).double().cpu().numpy()
     if path is not None:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -361,18 +395,11 @@ def probe_instance(
         ``oracle_best_rank``, ``oracle_best_in_top`` (:func:`simulator_agreement`; ``None``
         without ``simulator``) and ``oracle_seconds``.
     """
-    agent = PlanningAgent(model, PlannerConfig(num_samples=num_samples), cost_mode, device=device)
-    goal, frames, state = first_step_context(instance, agent.image_size)
-    agent.reset(instance.task, goal, trial_seed(instance.task, instance.index, seed))
-    if getattr(agent.model, "needs_simulator_state", False):
-        agent.model.set_simulator_state(instance.env_meta, state)
-    context = frames_to_tensor(frames[-agent.num_context :], agent.device)
-    objective = agent.objective(context, torch.zeros(agent.action_dim, device=agent.device))
+    context = step_context(instance, int(model.image_size))
+    agent = reset_agent(model, instance, context["goal"], seed, num_samples, device, cost_mode)
+    objective = step_objective(agent, instance, context)
+    candidates, batch = draw_batch(agent, context["rest"], num_samples)  # the scripted plan last
     optimizer = agent.optimizer
-    std = broadcast_std(optimizer.sigma, agent.plan)
-    candidates = optimizer.sampler.sample(agent.plan, std, num_samples, agent.generator)
-    scripted = scripted_plan(instance.actions, agent.horizon, agent.action_dim).to(candidates)
-    batch = torch.cat([candidates, scripted[None]])  # (N + 1, T, A): the scripted plan last
     start = time.perf_counter()
     with torch.no_grad():
         first = objective(batch).double().cpu().numpy()
@@ -392,8 +419,6 @@ def probe_instance(
     oracle_seconds = 0.0
     if simulator is not None:
         start = time.perf_counter()
-        context = {"goal": goal, "frames": frames, "state": state,
-                   "last_action": np.zeros(agent.action_dim)}  # fmt: skip
         oracle = simulator_scores(simulator, instance, batch, context, seed, num_samples, device,
                                   cache)  # fmt: skip
         agreement = simulator_agreement(scores, oracle[:num_samples])

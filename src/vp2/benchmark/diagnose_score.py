@@ -129,9 +129,15 @@ def fit(
     }
 
 
+def fitted_on_these_features(predictor: Mapping[str, Any]) -> bool:
+    """Whether ``predictor`` was fitted on the features this vp2 computes (:data:`FEATURES`,
+    in order); an asset of an older vp2 may hold others."""
+    return list(predictor.get("features") or []) == list(FEATURES)
+
+
 def predict(predictor: Mapping[str, Any], row: Mapping[str, float]) -> float:
     """The predicted success fraction of a model with features ``row``."""
-    if list(predictor["features"]) != list(FEATURES):
+    if not fitted_on_these_features(predictor):
         raise ValueError(
             f"the predictor was fitted on features {predictor['features']}, this vp2 computes "
             f"{list(FEATURES)}: refit it (benchmarks.studies.diagnose_validation)"
@@ -182,7 +188,7 @@ def predicted_score(
     plan = (report.get("planning") or {}).get("scripted_plan") or {}
     if not plan.get("instances"):
         return None, "not predicted: the planning measures were skipped (--instances-per-task 0)"
-    if list(predictor.get("features") or []) != list(FEATURES):
+    if not fitted_on_these_features(predictor):
         return None, (
             f"not predicted: the shipped predictor was fitted on other measures "
             f"({', '.join(predictor.get('features') or [])}) than this vp2 reports; refit it "

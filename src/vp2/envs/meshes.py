@@ -40,6 +40,7 @@ import mujoco
 import numpy as np
 
 from vp2.utils.io import atomic_path
+from vp2.utils.io import cache_dir as io_cache_dir
 
 __all__ = [
     "DEFAULT_MIN_FACES",
@@ -63,9 +64,7 @@ _FORMAT = b"VP2MESH1"
 
 def cache_dir() -> Path:
     """``$VP2_CACHE_DIR/meshes`` if set, else ``~/.cache/vp2/meshes``."""
-    root = os.environ.get("VP2_CACHE_DIR")
-    base = Path(root) if root else Path.home() / ".cache" / "vp2"
-    return base / "meshes"
+    return io_cache_dir("meshes")
 
 
 def visual_only_meshes(

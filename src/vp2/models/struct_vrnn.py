@@ -252,9 +252,12 @@ class StructVRNN(VideoPredictor):
 
     # ----------------------------------------------------------------- inference
 
-    def _predict(
-        self, context_frames: Tensor, actions: Tensor, generator: torch.Generator
-    ) -> Tensor:
+    def rollout_keypoints(
+        self, context_frames: Tensor, actions: Tensor, generator: torch.Generator | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """The dynamics' keypoints of the future frames ``(B, T, K, 3)`` and the first context
+        frame's ``(B, K, 3)``; latents sampled from the prior with ``generator``, or its mean
+        when ``generator`` is ``None`` (no sampling noise)."""
         context = self.config.num_context
         observed = self._detect(context_frames).flatten(2)  # (B, C, 3K)
         # Warm the core up on the context transitions (k_{t-1}, a_{t-1}) -> k_t.
@@ -263,8 +266,14 @@ class StructVRNN(VideoPredictor):
         for t in range(context, context + self.config.num_future):
             e, state = self.dynamics.step_core(k_prev, actions[:, t - 1 : t], state)
             mu, logvar = self._latent(self.dynamics.prior(e))
-            k_prev = self.dynamics.predict_keypoints(e, reparameterize(mu, logvar, generator))
+            z = mu if generator is None else reparameterize(mu, logvar, generator)
+            k_prev = self.dynamics.predict_keypoints(e, z)
             predicted.append(k_prev)
         keypoints = torch.cat(predicted, 1).unflatten(-1, (-1, 3))  # (B, T, K, 3)
-        first = observed[:, 0].unflatten(-1, (-1, 3))  # (B, K, 3)
+        return keypoints, observed[:, 0].unflatten(-1, (-1, 3))
+
+    def _predict(
+        self, context_frames: Tensor, actions: Tensor, generator: torch.Generator
+    ) -> Tensor:
+        keypoints, first = self.rollout_keypoints(context_frames, actions, generator)
         return self._render(keypoints, first, context_frames[:, 0]).clamp(0, 1)

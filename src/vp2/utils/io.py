@@ -63,3 +63,11 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     return obj
+
+
+def cache_dir(name: str) -> Path:
+    """vp2's cache folder ``name``: ``$VP2_CACHE_DIR/<name>`` if that is set, else
+    ``~/.cache/vp2/<name>`` (created by whoever writes there)."""
+    root = os.environ.get("VP2_CACHE_DIR")
+    return (Path(root) if root else Path.home() / ".cache" / "vp2") / name
+
