@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tests.classifiers import STEPS
-from vp2.classifiers.data import load_frames
+from vp2.classifiers.data import load_frames, progress_targets, progress_threshold
 from vp2.data import storage
 
 
@@ -38,3 +38,31 @@ def test_frame_set_counts(dataset):
     assert d["frames"] == len(frames) == d["trajectories"] * STEPS
     assert d["positives"] == int(frames.labels.sum())
     assert d["positive_trajectories"] == len(np.unique(frames.trajectories[frames.labels]))
+
+
+def test_progress_targets_decay_before_the_first_positive_frame():
+    got = progress_targets(np.array([0, 0, 0, 1, 0, 1], bool), decay=0.5)
+    np.testing.assert_allclose(got, [0.125, 0.25, 0.5, 1.0, 1.0, 1.0])
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(progress_targets(np.zeros(4, bool)), np.zeros(4))
+    np.testing.assert_allclose(progress_targets(np.array([1, 0], bool)), [1.0, 1.0])
+    with pytest.raises(ValueError, match="decay"):
+        progress_targets(np.ones(3, bool), decay=1.0)
+
+
+def test_progress_label_scores_against_the_paper_label(dataset):
+    root, trajectories = dataset
+    frames = load_frames(root, "push_red", "train", label="progress")
+    dense = load_frames(root, "push_red", "train", label="dense")
+    np.testing.assert_array_equal(frames.labels, dense.labels)
+    assert dense.targets is None and dense.threshold == 0.0
+    expected = [
+        progress_targets(t.dense_reward >= 30)
+        for t in trajectories
+        if t.task == "robodesk/push_red" and not storage.is_valid_index(t.index, 3)
+    ]
+    np.testing.assert_allclose(frames.targets, np.concatenate(expected))
+    np.testing.assert_allclose(frames.training_targets(), frames.targets)
+    np.testing.assert_array_equal(dense.training_targets(), dense.labels.astype(np.float32))
+    # halfway between the targets of the first positive frame (1) and the one before (0.7)
+    assert frames.threshold == pytest.approx(np.log(0.85 / 0.15)) == progress_threshold()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -13,6 +15,7 @@ from vp2.classifiers.train import (
     classification_metrics,
     evaluate,
     learning_rate,
+    predict_logits,
     train_classifier,
 )
 
@@ -85,3 +88,27 @@ def test_cosine_training_changes_the_result_and_still_learns():
         for a, b in zip(constant.state_dict().values(), cosine.state_dict().values(), strict=True)
     ]
     assert any(differs)
+
+
+def test_soft_targets_are_fitted_and_scored_at_the_frame_set_threshold():
+    # Frames with the bright square get target 0.9, the others 0.2: the trained logits
+    # approach logit(0.9) and logit(0.2), and scoring uses the frame set's threshold.
+    frames = _separable(256, 0)
+    soft = FrameSet(
+        images=frames.images,
+        labels=frames.labels,
+        trajectories=frames.trajectories,
+        steps=frames.steps,
+        targets=np.where(frames.labels, 0.9, 0.2).astype(np.float32),
+        threshold=1.0,
+    )
+    config = ClassifierTrainConfig(arch="ours", steps=300, batch_size=32, seed=3)
+    model = train_classifier(soft, config, log_every=1000)
+    held_out = _separable(128, 1)
+    p = 1 / (1 + np.exp(-predict_logits(model, held_out.images)))
+    assert abs(p[held_out.labels].mean() - 0.9) < 0.06
+    assert abs(p[~held_out.labels].mean() - 0.2) < 0.06
+    # at threshold 1.0 (p = 0.73) the square frames are positive, the others negative
+    m = evaluate(model, dataclasses.replace(held_out, threshold=1.0))
+    assert m["accuracy"] >= 0.95
+    assert evaluate(model, dataclasses.replace(held_out, threshold=5.0))["tp"] == 0

@@ -215,3 +215,17 @@ def test_local_collection_reports_every_trajectory(tmp_path, monkeypatch):
     assert counter.calls.count("t") == 4 and counter.calls.count("c") == 2
     assert counter.bar.n == 4
     assert len(list((root / storage.SHARD_DIR).glob("*.hdf5"))) == 2
+
+
+def test_a_split_that_leaves_a_stream_without_held_out_trajectories_is_refused():
+    # Index i belongs to stream i % 2 and is held out when i % 10 == 9: every held-out index
+    # is odd, so the first stream would have none.
+    two = ("robodesk/flat_block_off_table", "robodesk/upright_block_off_table")
+    config = CollectionConfig(env="robodesk", trajectories_per_stream=20, streams=two)
+    with pytest.raises(ValueError, match=r"coprime with 2, e\.g\. 11"):
+        config.validate()
+    CollectionConfig(env="robodesk", trajectories_per_stream=20, streams=two, valid_every=11).validate()
+    CollectionConfig(env="robodesk", trajectories_per_stream=20, streams=two, valid_every=0).validate()
+    CollectionConfig(env="robodesk", trajectories_per_stream=20).validate()  # 7 streams, 10
+    with pytest.raises(ValueError, match="valid_every must be >= 0"):
+        CollectionConfig(env="robodesk", trajectories_per_stream=20, valid_every=-1).validate()

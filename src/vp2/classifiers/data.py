@@ -30,12 +30,22 @@ class FrameSet:
         labels: ``(N,)`` bool, the simulator's success flag of each frame.
         trajectories: ``(N,)`` int64, the dataset index of each frame's trajectory.
         steps: ``(N,)`` int64, the frame's index in its trajectory (0 = the reset frame).
+        targets: ``(N,)`` float32 training targets in [0, 1] where the label is soft
+            (``"progress"``), else ``None`` (the targets are ``labels``).
+        threshold: The logit above which a frame counts as predicted positive when it is
+            scored against ``labels`` (0 for the hard labels).
     """
 
     images: np.ndarray
     labels: np.ndarray
     trajectories: np.ndarray
     steps: np.ndarray
+    targets: np.ndarray | None = None
+    threshold: float = 0.0
+
+    def training_targets(self) -> np.ndarray:
+        """``(N,)`` float32: what the loss fits (the soft targets, else the labels)."""
+        return (self.labels if self.targets is None else self.targets).astype(np.float32)
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -63,7 +73,37 @@ LABELS = {
     "success": "simulator success flag of each frame (success[k] of obs/rgb[k])",
     "dense": "paper: dense reward summed over the step's 50 action repeats >= 30 "
     "(dense_reward[k] of obs/rgb[k])",
+    "progress": "soft: PROGRESS_DECAY ** (steps until the paper's label first holds in the "
+    "frame's trajectory), 1 from then on, 0 in a trajectory where it never holds; scored "
+    "against the paper's label at sigmoid(logit) >= (1 + PROGRESS_DECAY) / 2",
 }
+
+#: Decay per step of the ``"progress"`` label: its target is 1 where the paper's label first
+#: holds, 0.7 one step before, 0.49 two steps before, ... (0.014 twelve steps before).
+PROGRESS_DECAY = 0.7
+
+
+def progress_targets(positive: np.ndarray, decay: float = PROGRESS_DECAY) -> np.ndarray:
+    """Soft targets of one trajectory's frames from its per-frame paper labels.
+
+    ``decay ** (k* - k)`` for frame ``k`` before the first positive frame ``k*``, 1 from ``k*``
+    on, and 0 everywhere in a trajectory with no positive frame.
+
+    Args:
+        positive: ``(T + 1,)`` bool, the paper's label of each frame.
+        decay: Factor per step before ``k*``, in (0, 1).
+
+    Returns:
+        ``(T + 1,)`` float32.
+    """
+    positive = np.asarray(positive, bool)
+    if not 0.0 < decay < 1.0:
+        raise ValueError(f"decay must be in (0, 1), got {decay}")
+    if not positive.any():
+        return np.zeros(len(positive), np.float32)
+    first = int(np.argmax(positive))
+    k = np.arange(len(positive))
+    return np.where(k >= first, 1.0, decay ** (first - k)).astype(np.float32)
 
 
 def load_frames(root: str | Path, task: str, split: str, label: str = "success") -> FrameSet:
@@ -93,7 +133,7 @@ def load_frames(root: str | Path, task: str, split: str, label: str = "success")
     if not records:
         raise DatasetError(f"{root}: no {split} trajectories of {full}")
     require_images(root, records)
-    images, labels, trajectories, steps = [], [], [], []
+    images, labels, trajectories, steps, targets = [], [], [], [], []
     by_file: dict[Path, list[str]] = {}
     for r in records:
         by_file.setdefault(r.path, []).append(r.name)
@@ -102,7 +142,7 @@ def load_frames(root: str | Path, task: str, split: str, label: str = "success")
             for name in names:
                 g = f["data"][name]
                 rgb = g["obs/rgb"][()]  # (T + 1, H, W, 3)
-                if label == "dense":
+                if label in ("dense", "progress"):
                     if "dense_reward" not in g:
                         raise DatasetError(
                             f"{path}:{name}: no dense_reward (collected before it was "
@@ -110,6 +150,7 @@ def load_frames(root: str | Path, task: str, split: str, label: str = "success")
                             "--label success"
                         )
                     success = g["dense_reward"][()] >= DENSE_LABEL_THRESHOLD
+                    targets.append(progress_targets(success))
                 else:
                     success = g["success"][()].astype(bool)  # (T + 1,)
                 if len(rgb) != len(success):
@@ -121,12 +162,22 @@ def load_frames(root: str | Path, task: str, split: str, label: str = "success")
                 trajectories.append(np.full(len(rgb), int(name.split("_")[1]), np.int64))
                 steps.append(np.arange(len(rgb), dtype=np.int64))
     order = np.argsort(np.concatenate(trajectories) * 10_000 + np.concatenate(steps), kind="stable")
+    soft = label == "progress"
     return FrameSet(
         images=np.concatenate(images)[order],
         labels=np.concatenate(labels)[order],
         trajectories=np.concatenate(trajectories)[order],
         steps=np.concatenate(steps)[order],
+        targets=np.concatenate(targets)[order] if soft else None,
+        threshold=progress_threshold() if soft else 0.0,
     )
+
+
+def progress_threshold(decay: float = PROGRESS_DECAY) -> float:
+    """The logit at which a ``"progress"`` classifier's probability is halfway between the
+    targets of the first positive frame (1) and the frame before it (``decay``)."""
+    p = (1.0 + decay) / 2.0
+    return float(np.log(p / (1.0 - p)))
 
 
 def to_tensor(images: np.ndarray, device: torch.device | str = "cpu") -> Tensor:

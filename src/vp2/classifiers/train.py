@@ -136,7 +136,7 @@ def train_classifier(
         model = build_classifier(config.arch, image_size, config.width).to(device)
     generator = torch.Generator().manual_seed(config.seed + 1)
     images = torch.from_numpy(np.ascontiguousarray(train.images))  # (N, H, W, 3) uint8, CPU
-    labels = torch.from_numpy(train.labels.astype(np.float32))  # (N,)
+    labels = torch.from_numpy(train.training_targets())  # (N,) in [0, 1]
     pos_weight = config.resolved_pos_weight(train)
     loss_fn = nn.BCEWithLogitsLoss(
         pos_weight=None if pos_weight is None else torch.tensor(pos_weight, device=device)
@@ -179,13 +179,15 @@ def predict_logits(
     return torch.cat(out).numpy() if out else np.zeros(0, np.float32)
 
 
-def classification_metrics(logits: np.ndarray, labels: np.ndarray) -> dict[str, Any]:
-    """Accuracy, precision and recall of ``logit > 0`` against boolean labels.
+def classification_metrics(
+    logits: np.ndarray, labels: np.ndarray, threshold: float = 0.0
+) -> dict[str, Any]:
+    """Accuracy, precision and recall of ``logit > threshold`` against boolean labels.
 
     Precision is ``None`` when nothing is predicted positive and recall ``None`` when there is
     no positive frame (undefined, rather than a misleading 0 or 1).
     """
-    predicted = np.asarray(logits) > 0
+    predicted = np.asarray(logits) > threshold
     labels = np.asarray(labels, bool)
     tp = int((predicted & labels).sum())
     fp = int((predicted & ~labels).sum())
@@ -207,7 +209,9 @@ def classification_metrics(logits: np.ndarray, labels: np.ndarray) -> dict[str, 
 
 def evaluate(classifier: Callable[[Tensor], Tensor], frames: FrameSet) -> dict[str, Any]:
     """Held-out metrics of a classifier on labelled frames (see :func:`classification_metrics`)."""
-    return classification_metrics(predict_logits(classifier, frames.images), frames.labels)
+    return classification_metrics(
+        predict_logits(classifier, frames.images), frames.labels, frames.threshold
+    )
 
 
 def train_task(

@@ -29,7 +29,10 @@ FLAGS: dict[str, Flag | None] = {
     "seed": Flag(),
     "horizon": NOT_A_FLAG,
     "chunk_size": Flag(help="trajectories per shard"),
-    "valid_every": NOT_A_FLAG,
+    "valid_every": Flag(
+        help="hold out every Nth trajectory of the dataset for validation (0: none); must be "
+        "coprime with the number of streams, so that every stream has held-out trajectories"
+    ),
     "render": Flag(
         "--states-only",
         negate=True,

@@ -82,8 +82,9 @@ FLAGS: dict[str, Flag | None] = {
     ),
     "label": Flag(
         choices=sorted(LABELS),
-        help="frame label: success (the simulator's success flag) or dense (the paper's: "
-        "dense reward summed over the step's 50 repeats >= 30)",
+        help="frame label: success (the simulator's success flag), dense (the paper's: "
+        "dense reward summed over the step's 50 repeats >= 30) or progress (soft: 0.7 ** "
+        "steps until the paper's label first holds)",
     ),
     "seed": Flag(),
     "device": Flag(),

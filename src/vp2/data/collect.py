@@ -18,6 +18,7 @@ import contextlib
 import dataclasses
 import functools
 import logging
+import math
 import multiprocessing as mp
 import threading
 import time
@@ -87,6 +88,18 @@ class CollectionConfig:
         for s in self.resolved_streams():
             if s not in known:
                 raise ValueError(f"unknown data stream {s!r} for env {self.env!r}; known: {', '.join(known)}")
+        if self.valid_every < 0:
+            raise ValueError(f"valid_every must be >= 0 (0: no validation split), got {self.valid_every}")
+        streams = len(self.resolved_streams())
+        if self.valid_every > 0 and math.gcd(streams, self.valid_every) > 1:
+            # Index i belongs to stream i % streams and is held out when i % valid_every ==
+            # valid_every - 1: with a common factor, some streams never reach a held-out index.
+            fits = next(v for v in range(self.valid_every, 10 * self.valid_every) if math.gcd(streams, v) == 1)
+            raise ValueError(
+                f"{streams} data streams with a validation split of every {self.valid_every}th "
+                "trajectory would hold out no trajectory of some streams (the dataset's indices "
+                f"interleave the streams); choose --valid-every coprime with {streams}, e.g. {fits}"
+            )
 
     @property
     def total(self) -> int:
