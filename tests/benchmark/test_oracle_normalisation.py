@@ -129,6 +129,33 @@ def test_tasks_of_one_run_may_be_matched_by_different_tables():
     assert summary.oracle_note is None
 
 
+def test_a_table_measured_with_another_classifier_or_weight_is_not_used():
+    shipped = {"sha256": "aaaa", "weight": 10.0, "dataset": "d"}
+    oracle = _oracle(table("desk", {ROBODESK: (0.5, 200)}, classifiers={ROBODESK: shipped}))
+
+    def records(classifier):
+        out = model_records({(0, 0): True}, task=ROBODESK, shas=lambda i: f"r{i}")
+        if classifier is not False:  # False: records that do not say (no agent field)
+            out[0]["agent"] = {"agent": "planning", "classifier": classifier}
+        return out
+
+    same = summarize_run(records({"sha256": "aaaa", "weight": 10, "dataset": "other"}),
+                         shipped=oracle)
+    assert same.normalised == pytest.approx(2.0)
+    assert summarize_run(records(False), shipped=oracle).normalised == pytest.approx(2.0)
+    remedy = "; re-measure it (`vp2 ship-oracle`) or pass --oracle RUN_DIR"
+    for theirs, line in [
+        ({"sha256": "bbbb", "weight": 10.0}, "classifier bbbb at weight 10"),
+        ({"sha256": "aaaa", "weight": 100.0}, "classifier aaaa at weight 100"),
+        (None, "no classifier"),
+    ]:
+        summary = summarize_run(records(theirs), shipped=oracle)
+        assert summary.normalised is None
+        assert summary.oracle_note == (
+            "the shipped oracle table 'desk' planned with classifier aaaa at weight 10, this "
+            f"run with {line}" + remedy)
+
+
 def test_other_instances_suites_and_missing_tasks(asset):
     oracle = load_shipped_oracle()
     # Another suite version of the instance: the task is omitted, and the summary says why.

@@ -141,9 +141,30 @@ def task_samples(task: str, planner: Any = None) -> int | None:
         return None
 
 
+#: A run's planning classifier of a task when its records do not say (no ``agent`` field).
+UNKNOWN = object()
+
+
+def _classifier_key(classifier: dict[str, Any] | None) -> tuple[Any, Any] | None:
+    """``(sha256, weight)`` of a classifier's provenance, ``None`` for none."""
+    if not classifier:
+        return None
+    weight = classifier.get("weight")
+    return (classifier.get("sha256"), None if weight is None else float(weight))
+
+
+def _describe_classifier(key: tuple[Any, Any] | None) -> str:
+    return "no classifier" if key is None else f"classifier {key[0]} at weight {key[1]:g}"
+
+
 def _problem(table: OracleTable, task: str, shas: dict[int, str],
-             fingerprints: dict[str, str]) -> tuple[Any, ...] | None:
-    """Why ``table`` may not normalise ``task`` (a note's key), ``None`` if it may."""
+             fingerprints: dict[str, str], classifier: Any = UNKNOWN) -> tuple[Any, ...] | None:
+    """Why ``table`` may not normalise ``task`` (a note's key), ``None`` if it may.
+
+    ``classifier`` is the run's success classifier of the task (its provenance dict, ``None``
+    for a pixel-only cost, :data:`UNKNOWN` where the records do not say); a table measured
+    with another classifier file or weight does not normalise the task.
+    """
     from vp2.data.suite import SUITE_FORMAT
 
     env = task.split("/")[0]
@@ -154,6 +175,11 @@ def _problem(table: OracleTable, task: str, shas: dict[int, str],
     if any(table.instance_fingerprints.get(f"{task}#{i}") not in (None, sha)
            for i, sha in shas.items()):
         return ("instances", table.name)
+    if classifier is not UNKNOWN:
+        ours, theirs = _classifier_key(classifier), _classifier_key(table.classifiers.get(task))
+        if ours != theirs:
+            return ("classifier", table.name, _describe_classifier(theirs),
+                    _describe_classifier(ours))
     return None
 
 
@@ -179,6 +205,10 @@ def _note(key: tuple[Any, ...], tasks: list[str], every: bool, normalised: bool,
         head = (f"the shipped oracle table '{key[1]}' was measured on task suite {key[2]!r}, "
                 f"this vp2 uses {SUITE_FORMAT!r}{which}")
         remedy = remeasure
+    elif kind == "classifier":
+        head = (f"the shipped oracle table '{key[1]}' planned{which} with {key[2]}, this run "
+                f"with {key[3]}")
+        remedy = remeasure
     elif kind == "render":
         head = (f"the shipped oracle table '{key[1]}' was rendered with another camera/render "
                 f"spec ({key[2]} render fingerprint {key[3]}, this vp2's {key[4]}){which}")
@@ -200,16 +230,20 @@ def match_tables(
     Args:
         tables: The shipped oracle's tables, in the asset's order (the first table that
             matches a task is used).
-        records: The run's trial records (their tasks, instances and ``instance_sha``).
+        records: The run's trial records (their tasks, instances, ``instance_sha`` and
+            ``agent.classifier``, the success classifier and weight they planned with).
         planner: The run's :class:`~vp2.planning.config.PlannerConfig` (``None``: SPEC).
     """
     from vp2.envs.render_specs import render_fingerprint
 
     order = list(dict.fromkeys(r["task"] for r in records))
     shas: dict[str, dict[int, str]] = {t: {} for t in order}
+    classifiers: dict[str, Any] = {t: UNKNOWN for t in order}
     for r in records:
         if r.get("instance_sha") is not None:
             shas[r["task"]][int(r["instance"])] = r["instance_sha"]
+        if isinstance(r.get("agent"), dict) and classifiers[r["task"]] is UNKNOWN:
+            classifiers[r["task"]] = r["agent"].get("classifier")
     samples = {t: task_samples(t, planner) for t in order}
     fingerprints: dict[str, str] = {}
     rows: dict[str, TaskSummary] = {}
@@ -227,7 +261,8 @@ def match_tables(
             continue
         if env not in fingerprints:
             fingerprints[env] = render_fingerprint(env)
-        problems = [_problem(t, task, shas[task], fingerprints) for t in at_budget]
+        problems = [_problem(t, task, shas[task], fingerprints, classifiers[task])
+                    for t in at_budget]
         ok = [t for t, p in zip(at_budget, problems, strict=True) if p is None]
         if ok:
             chosen[task], rows[task] = ok[0], ok[0].task_summary(task)
