@@ -154,6 +154,12 @@ def test_a_table_measured_with_another_classifier_or_weight_is_not_used():
         assert summary.oracle_note == (
             "the shipped oracle table 'desk' planned with classifier aaaa at weight 10, this "
             f"run with {line}" + remedy)
+    # A run resumed after a classifier change: one trial with the table's, one without.
+    mixed = records({"sha256": "aaaa", "weight": 10.0}) + records({"sha256": "bbbb", "weight": 10.0})
+    mixed[1]["instance"], mixed[1]["instance_sha"] = 1, "r1"
+    summary = summarize_run(mixed, shipped=oracle)
+    assert summary.normalised is None and "this run with classifier bbbb at weight 10" in (
+        summary.oracle_note)
 
 
 def test_other_instances_suites_and_missing_tasks(asset):

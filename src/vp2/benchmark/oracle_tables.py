@@ -141,10 +141,6 @@ def task_samples(task: str, planner: Any = None) -> int | None:
         return None
 
 
-#: A run's planning classifier of a task when its records do not say (no ``agent`` field).
-UNKNOWN = object()
-
-
 def _classifier_key(classifier: dict[str, Any] | None) -> tuple[Any, Any] | None:
     """``(sha256, weight)`` of a classifier's provenance, ``None`` for none."""
     if not classifier:
@@ -157,13 +153,14 @@ def _describe_classifier(key: tuple[Any, Any] | None) -> str:
     return "no classifier" if key is None else f"classifier {key[0]} at weight {key[1]:g}"
 
 
-def _problem(table: OracleTable, task: str, shas: dict[int, str],
-             fingerprints: dict[str, str], classifier: Any = UNKNOWN) -> tuple[Any, ...] | None:
+def _problem(table: OracleTable, task: str, shas: dict[int, str], fingerprints: dict[str, str],
+             classifiers: Sequence[tuple[Any, Any] | None] = ()) -> tuple[Any, ...] | None:
     """Why ``table`` may not normalise ``task`` (a note's key), ``None`` if it may.
 
-    ``classifier`` is the run's success classifier of the task (its provenance dict, ``None``
-    for a pixel-only cost, :data:`UNKNOWN` where the records do not say); a table measured
-    with another classifier file or weight does not normalise the task.
+    ``classifiers`` are the :func:`_classifier_key` of every success classifier the run's
+    trials of the task planned with (``None`` for a pixel-only cost; empty where the records
+    do not say); a table measured with another classifier file or weight does not normalise
+    the task.
     """
     from vp2.data.suite import SUITE_FORMAT
 
@@ -175,8 +172,8 @@ def _problem(table: OracleTable, task: str, shas: dict[int, str],
     if any(table.instance_fingerprints.get(f"{task}#{i}") not in (None, sha)
            for i, sha in shas.items()):
         return ("instances", table.name)
-    if classifier is not UNKNOWN:
-        ours, theirs = _classifier_key(classifier), _classifier_key(table.classifiers.get(task))
+    theirs = _classifier_key(table.classifiers.get(task))
+    for ours in classifiers:
         if ours != theirs:
             return ("classifier", table.name, _describe_classifier(theirs),
                     _describe_classifier(ours))
@@ -238,12 +235,12 @@ def match_tables(
 
     order = list(dict.fromkeys(r["task"] for r in records))
     shas: dict[str, dict[int, str]] = {t: {} for t in order}
-    classifiers: dict[str, Any] = {t: UNKNOWN for t in order}
+    classifiers: dict[str, dict[Any, None]] = {t: {} for t in order}  # ordered sets
     for r in records:
         if r.get("instance_sha") is not None:
             shas[r["task"]][int(r["instance"])] = r["instance_sha"]
-        if isinstance(r.get("agent"), dict) and classifiers[r["task"]] is UNKNOWN:
-            classifiers[r["task"]] = r["agent"].get("classifier")
+        if isinstance(r.get("agent"), dict):
+            classifiers[r["task"]][_classifier_key(r["agent"].get("classifier"))] = None
     samples = {t: task_samples(t, planner) for t in order}
     fingerprints: dict[str, str] = {}
     rows: dict[str, TaskSummary] = {}
@@ -261,7 +258,7 @@ def match_tables(
             continue
         if env not in fingerprints:
             fingerprints[env] = render_fingerprint(env)
-        problems = [_problem(t, task, shas[task], fingerprints, classifiers[task])
+        problems = [_problem(t, task, shas[task], fingerprints, list(classifiers[task]))
                     for t in at_budget]
         ok = [t for t, p in zip(at_budget, problems, strict=True) if p is None]
         if ok:

@@ -150,7 +150,8 @@ def load_frames(root: str | Path, task: str, split: str, label: str = "success")
                             "--label success"
                         )
                     success = g["dense_reward"][()] >= DENSE_LABEL_THRESHOLD
-                    targets.append(progress_targets(success))
+                    if label == "progress":
+                        targets.append(progress_targets(success))
                 else:
                     success = g["success"][()].astype(bool)  # (T + 1,)
                 if len(rgb) != len(success):
