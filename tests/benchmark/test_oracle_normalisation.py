@@ -143,6 +143,16 @@ def test_a_table_measured_with_another_classifier_or_weight_is_not_used():
                          shipped=oracle)
     assert same.normalised == pytest.approx(2.0)
     assert summarize_run(records(False), shipped=oracle).normalised == pytest.approx(2.0)
+    # Records (and tables built from them) from before the weight was recorded planned at the
+    # SPEC's weight, 10: they match a table or run at 10, and only at 10.
+    unweighted = {"sha256": "aaaa", "dataset": "d"}
+    assert summarize_run(records(unweighted), shipped=oracle).normalised == pytest.approx(2.0)
+    old = _oracle(table("desk", {ROBODESK: (0.5, 200)}, classifiers={ROBODESK: unweighted}))
+    assert summarize_run(records(shipped), shipped=old).normalised == pytest.approx(2.0)
+    at_100 = summarize_run(records({**shipped, "weight": 100.0}), shipped=old)
+    assert at_100.normalised is None and at_100.oracle_note.startswith(
+        "the shipped oracle table 'desk' planned with classifier aaaa at weight 10, this run "
+        "with classifier aaaa at weight 100")
     remedy = "; re-measure it (`vp2 ship-oracle`) or pass --oracle RUN_DIR"
     for theirs, line in [
         ({"sha256": "bbbb", "weight": 10.0}, "classifier bbbb at weight 10"),

@@ -296,3 +296,32 @@ def test_the_packaged_asset_loads_if_there_is_one(monkeypatch):
     else:
         assert oracle is not None and oracle.tables
         assert all(t.suite_format == SUITE_FORMAT and t.tasks for t in oracle.tables)
+
+
+def test_the_shipped_table_normalises_a_run_of_the_shipped_classifiers(monkeypatch):
+    """A 50-sample run of every category, planned as `vp2 run` plans today (the shipped
+    classifier files at each task's weight), is normalised on every task by the packaged
+    `samples-50` table: a classifier or weight change that leaves the table stale fails here."""
+    from vp2.benchmark.shipped_oracle import summarize_run
+    from vp2.classifiers.checkpoint import file_sha256
+    from vp2.classifiers.registry import shipped_path
+    from vp2.envs import TASK_NAMES
+    from vp2.envs.tasks import get_task
+    from vp2.planning.config import PlannerConfig
+
+    monkeypatch.delenv(ENV_VAR, raising=False)
+    oracle = load_shipped_oracle()
+    suite = TaskSuite.load()
+    records = []
+    for task in TASK_NAMES:
+        record = {"task": task, "instance": 0, "seed": 0, "success": True, "error": None,
+                  "instance_sha": suite.get(task, 0).fingerprint, "cost": "pixel"}
+        weight = get_task(task).classifier_weight
+        if weight is not None:
+            record["agent"] = {"agent": "planning", "classifier": {
+                "sha256": file_sha256(shipped_path(task))[:16], "weight": weight}}
+        records.append(record)
+    summary = summarize_run(records, shipped=oracle, planner=PlannerConfig(num_samples=50))
+    assert summary.warnings == [] and summary.oracle_note is None
+    assert summary.normalised is not None
+    assert "samples-50" in summary.oracle_source

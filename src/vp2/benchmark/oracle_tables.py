@@ -15,6 +15,7 @@ import dataclasses
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from vp2 import spec
 from vp2.benchmark.results import TaskSummary
 
 
@@ -142,11 +143,17 @@ def task_samples(task: str, planner: Any = None) -> int | None:
 
 
 def _classifier_key(classifier: dict[str, Any] | None) -> tuple[Any, Any] | None:
-    """``(sha256, weight)`` of a classifier's provenance, ``None`` for none."""
+    """``(sha256, weight)`` of a classifier's provenance, ``None`` for none.
+
+    Records written before the weight was recorded (and tables built from them) name no
+    weight; they planned at the SPEC's weight, the only one ``vp2 run`` used until per-task
+    weights came with the field.
+    """
     if not classifier:
         return None
     weight = classifier.get("weight")
-    return (classifier.get("sha256"), None if weight is None else float(weight))
+    return (classifier.get("sha256"),
+            float(spec.ROBODESK_CLASSIFIER_WEIGHT if weight is None else weight))
 
 
 def _describe_classifier(key: tuple[Any, Any] | None) -> str:
