@@ -27,6 +27,13 @@ c. **metrics**: ``vp2 metrics`` of each family and of repeat-last-frame on held-
 (``zoo:NAME``) shows its card's training budget, steps and device instead. ``--families``
 with no family compares extra models only (e.g. the zoo's).
 
+**Both environments.** ``--data`` given once per environment (e.g. a RoboDesk and a tabletop
+dataset) compares extra models only (``--families`` with no family): each model goes to the
+environment its zoo card names, or the one after ``@`` in its label (``shipped@robodesk=...``);
+each environment is a comparison of its own under ``--out/<env>`` (its tasks: those of
+``--tasks`` in that environment, default all), run one after the other, and one page
+(``--docs``) holds a part per environment.
+
 d. **runs**: ``vp2 run`` of each family, repeat-last-frame and random actions on the RoboDesk
    tasks (the first ``--num-instances`` of each, ``--seeds``, ``--num-samples`` planner
    samples), resumed trial by trial. ``--seeds-for RUN=SEEDS`` gives one run a subset of the
@@ -71,6 +78,7 @@ shared with other work pass ``--threads 1`` (docs/models.md: two threads stalled
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import datetime
 import json
@@ -86,14 +94,18 @@ import torch
 
 import vp2
 from benchmarks import common
-from benchmarks.comparison.model_comparison_results import relative_link, results_markdown
+from benchmarks.comparison.model_comparison_results import (
+    combined_markdown,
+    relative_link,
+    results_markdown,
+)
 from benchmarks.studies.action_conditioning import evaluate as conditioning_errors
 from benchmarks.studies.action_conditioning import held_out_clips, ratio_statistics
 from vp2.benchmark.config import RunConfig
 from vp2.benchmark.diagnose import DiagnoseConfig, diagnose_model
 from vp2.benchmark.model_spec import ModelSpec, resolve_model
 from vp2.benchmark.runner import RunResult, run_benchmark
-from vp2.data.storage import load_manifest
+from vp2.data.storage import DatasetError, load_manifest
 from vp2.metrics.evaluate import DEFAULT_BATCH_SIZE, evaluate_model, write_metrics
 from vp2.metrics.fvd import FrechetVideoDistance
 from vp2.planning.config import PlannerConfig
@@ -753,7 +765,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         type=Path,
         help="also write the page here (e.g. docs/results.md), its screenshot beside it",
     )
-    p.add_argument("--data", type=Path, default=Path("data/robodesk-300x-64px"))
+    p.add_argument(
+        "--data",
+        type=Path,
+        action="append",
+        help="dataset directory (default data/robodesk-300x-64px); once per environment to "
+        "compare extra models on both (each dataset's environment from its manifest)",
+    )
     p.add_argument("--budget-minutes", type=float, help="training minutes per family (default 60)")
     p.add_argument(
         "--families",
@@ -930,16 +948,117 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
     )
 
 
+#: The dataset of a comparison that names none.
+DEFAULT_DATA = Path("data/robodesk-300x-64px")
+
+
+def dataset_env(data: Path) -> str:
+    """The environment a dataset was collected in (its manifest's), with a clear error."""
+    try:
+        manifest = load_manifest(data)
+    except DatasetError as exc:
+        raise ValueError(f"--data {data}: {exc}") from exc
+    return str(manifest.get("config", {}).get("env", "robodesk"))
+
+
+def extra_env(label: str, spec: str, envs: Sequence[str]) -> tuple[str, str]:
+    """``(label without its @ENV, env)`` of an extra model in a comparison over ``envs``: the
+    environment after ``@`` in its label, else its zoo card's.
+
+    Raises:
+        ValueError: neither says, or the environment has no dataset here.
+    """
+    label, _, env = label.partition("@")
+    if not env:
+        parsed = ModelSpec.parse(spec)
+        if parsed.kind != "zoo":
+            raise ValueError(
+                f"--extra {label}={spec}: with a dataset per environment, say which "
+                f"environment it plans in: --extra {label}@ENV={spec} (ENV: {', '.join(envs)})")
+        env = parsed.zoo.env
+    if env not in envs:
+        raise ValueError(f"--extra {label}={spec}: it plans in {env}, and no --data is a {env} "
+                         f"dataset (the datasets' environments: {', '.join(envs)})")
+    return label, env
+
+
+def part_settings(args: argparse.Namespace, argv: Sequence[str],
+                  datasets: Sequence[Path]) -> list[Settings]:
+    """One :class:`Settings` per ``--data`` (per environment): its extra models, its tasks of
+    ``--tasks``, ``--out/<env>``; the page (``--docs``) is written by :func:`run_parts`.
+
+    Raises:
+        ValueError: families to train, two datasets of one environment, or an extra model or
+            task of an environment with no dataset.
+    """
+    if args.families:
+        raise ValueError(
+            "several --data: this compares models trained elsewhere (--extra, e.g. the zoo's) "
+            "on each environment; train families with one --data (add --families with no "
+            "family)")
+    envs = [dataset_env(d) for d in datasets]
+    if len(set(envs)) < len(envs):
+        raise ValueError(f"--data: two datasets of one environment ({', '.join(envs)}); give "
+                         "one per environment")
+    placed = [(*extra_env(*item.partition("=")[::2], envs), item) for item in args.extra]
+    tasks = args.tasks or list(envs)
+    stray = [t for t in tasks if t.split("/")[0] not in envs]
+    if stray:
+        raise ValueError(f"--tasks {' '.join(stray)}: no --data of that environment")
+    parts = []
+    for env, data in zip(envs, datasets, strict=True):
+        part = copy.copy(args)
+        part.data, part.docs, part.out = data, None, args.out / env
+        part.extra = [f"{label}={item.partition('=')[2]}" for label, e, item in placed if e == env]
+        part.tasks = [t for t in tasks if t.split("/")[0] == env]
+        settings = settings_from_args(part, argv)
+        if not settings.extras:
+            raise ValueError(f"--data {data}: no --extra model plans in {env}; drop the dataset "
+                             "or add a model")
+        parts.append(settings)
+    return parts
+
+
+def run_parts(parts: Sequence[Settings], args: argparse.Namespace) -> Path:
+    """Each environment's comparison in turn, then the page with a part per environment
+    (``--docs``, else ``--out/results.md``). Returns the page."""
+    for part in parts:
+        run_comparison(part)
+    page = args.docs or args.out / "results.md"
+    outs = [p.out for p in parts]
+    shots = {}
+    for part in parts:
+        shot = part.out / "report.png"
+        if args.docs is not None and shot.is_file():
+            image = page.with_name(f"{page.stem}-{part.out.name}-report.png")
+            with atomic_path(image) as tmp:
+                tmp.write_bytes(shot.read_bytes())
+            shots[part.out] = image.name
+        else:
+            shots[part.out] = relative_link(shot, page) if shot.is_file() else None
+    notes = None if args.notes is None else relative_link(args.notes, page)
+    with atomic_path(page) as tmp:
+        tmp.write_text(combined_markdown(outs, shots, notes))
+    return page
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
-        settings = settings_from_args(parse_args(argv), argv)
+        args = parse_args(argv)
+        datasets = args.data or [DEFAULT_DATA]
+        if len(datasets) == 1:
+            args.data = datasets[0]
+            parts = [settings_from_args(args, argv)]
+        else:
+            parts = part_settings(args, argv, datasets)
     except ValueError as exc:
         sys.exit(f"model_comparison.py: {exc}")
-    print(f"model comparison -> {settings.out} ({settings.device}, {settings.threads} threads)")
+    for part in parts:
+        print(f"model comparison -> {part.out} ({part.device}, {part.threads} threads)")
     try:
-        path = run_comparison(settings)
+        path = run_comparison(parts[0]) if len(parts) == 1 else run_parts(parts, args)
     except ValueError as exc:  # settings that do not fit what is on disk, said plainly
         sys.exit(f"model_comparison.py: {exc}")
     print(f"wrote {path}")

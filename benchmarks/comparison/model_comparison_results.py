@@ -89,12 +89,7 @@ def results_markdown(
             "the report leave them out until they are. The command above resumes them.",
             "",
         ]
-    lines += budget_lines(out, s)
-    lines += success_lines(out, s)
-    lines += conditioning_lines(out, s)
-    lines += diagnosis_lines(out, s)
-    lines += metrics_lines(out, s)
-    lines += study_lines(out / "study" / "study.json")
+    lines += body_lines(out, s)
     if notes:
         lines += ["", *reading_lines(notes)]
     lines += ["", "## The report", ""]
@@ -108,6 +103,66 @@ def results_markdown(
         lines.append(
             f"`report.html` is the `vp2 report` page of every run above ({screenshot_note})."
         )
+    return "\n".join(lines) + "\n"
+
+
+def body_lines(out: Path, s: dict[str, Any]) -> list[str]:
+    """The page's sections from the budget to the study, for the comparison in ``out``."""
+    return [
+        *budget_lines(out, s),
+        *success_lines(out, s),
+        *conditioning_lines(out, s),
+        *diagnosis_lines(out, s),
+        *metrics_lines(out, s),
+        *study_lines(out / "study" / "study.json"),
+    ]
+
+
+#: The part headings of a comparison over both environments.
+ENV_TITLES = {"robodesk": "RoboDesk", "tabletop": "Tabletop"}
+
+
+def combined_markdown(
+    outs: Sequence[Path], images: dict[Path, str | None], notes: str | None = None
+) -> str:
+    """The page of a comparison with a part per environment (``outs``: each environment's
+    output folder, named after it): the command once, then per environment its sections, a
+    level down, and its report's screenshot (``images``: its link from the page, ``None``:
+    none). Pending runs are read from the folders (runs without a ``summary.json``)."""
+    first = json.loads((outs[0] / "comparison.json").read_text())
+    names = [ENV_TITLES.get(o.name, o.name) for o in outs]
+    lines = [
+        "# Model comparison: the zoo on " + " and ".join(names) + ", judged by control",
+        "",
+        f"Written {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')} "
+        f"by `python -m benchmarks.comparison.model_comparison` (vp2 {first['vp2_version']}, "
+        f"torch {first['torch_version']}), one part per environment; every number below is read "
+        "from the files under the part's folder.",
+        "",
+        "Rebuild (the same command resumes an interrupted build; on a finished folder it only "
+        "rewrites the studies, the reports and this page):",
+        "",
+        "```bash",
+        first["command"],
+        "```",
+    ]
+    for out, name in zip(outs, names, strict=True):
+        s = json.loads((out / "comparison.json").read_text())
+        pending = [n for n in s["run_names"] if not (out / "runs" / n / "summary.json").is_file()]
+        lines += ["", f"## {name}", "",
+                  f"Dataset `{s['data']}`, tasks {', '.join(s['tasks'])}; files under `{out}`.", ""]
+        if pending:
+            counts = ", ".join(
+                f"{n} ({_trials_on_disk(out / 'runs' / n)} trials on disk)" for n in pending)
+            lines += [f"**Incomplete**: the runs of {counts} are not finished; the command above "
+                      "resumes them.", ""]
+        lines += [("#" + line) if line.startswith("## ") else line for line in body_lines(out, s)]
+        image = images.get(out)
+        lines += ["", f"### The report ({name})", ""]
+        lines.append(f"![vp2 report, {name}]({image})" if image else
+                     f"`{out / 'report.html'}` is the `vp2 report` page of this part's runs.")
+    if notes:
+        lines += ["", *reading_lines(notes)]
     return "\n".join(lines) + "\n"
 
 

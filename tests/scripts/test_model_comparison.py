@@ -357,3 +357,91 @@ def test_a_zoo_model_shows_the_budget_its_card_records(comparison, tmp_path):
     assert "| svg | `zoo:svg_prime-tiny-tabletop` | – | not trained here |" in "\n".join(
         budget_lines(tmp_path, page)
     )
+
+
+def _fake_dataset(root: Path, env: str) -> Path:
+    """A folder with a dataset manifest naming ``env`` (what the part split reads)."""
+    from vp2.data.storage import FORMAT, MANIFEST
+
+    root.mkdir(parents=True)
+    (root / MANIFEST).write_text(json.dumps({"format": FORMAT, "config": {"env": env}}))
+    return root
+
+
+def test_several_datasets_split_the_comparison_by_environment(comparison, tmp_path):
+    desk = _fake_dataset(tmp_path / "desk", "robodesk")
+    table = _fake_dataset(tmp_path / "table", "tabletop")
+    argv = ["--smoke", "--families", "--data", str(desk), "--data", str(table),
+            "--out", str(tmp_path / "cmp"), "--tasks", "robodesk/push_red", "tabletop",
+            "--extra", "svg=zoo:svg_prime-tiny-tabletop",
+            "--extra", "shipped@robodesk=svg_prime:src/vp2/assets/models/svg_prime_tiny_robodesk.pt",
+            "--extra", "fit=zoo:fitvid-robodesk-60min"]  # fmt: skip
+    args = comparison.parse_args(argv)
+    parts = comparison.part_settings(args, argv, args.data)
+    assert [(p.out, p.data, p.tasks) for p in parts] == [
+        (tmp_path / "cmp" / "robodesk", desk, ("robodesk/push_red",)),
+        (tmp_path / "cmp" / "tabletop", table, ("tabletop",)),
+    ]
+    assert parts[0].extras == (
+        ("shipped", "svg_prime:src/vp2/assets/models/svg_prime_tiny_robodesk.pt"),
+        ("fit", "zoo:fitvid-robodesk-60min"),
+    )
+    assert parts[1].extras == (("svg", "zoo:svg_prime-tiny-tabletop"),)
+    # every part records the whole command, which rebuilds both; none writes the page itself
+    assert all(p.docs is None and p.command == parts[0].command for p in parts)
+    assert "--data " + str(table) in parts[0].command
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--families", "fitvid"], "train families with one --data"),
+    (["--families", "--extra", "m=svg_prime:x.pt"], "say which environment it plans in: "
+                                                    "--extra m@ENV=svg_prime:x.pt"),
+    (["--families", "--extra", "m@desk=svg_prime:x.pt"], "it plans in desk, and no --data"),
+    (["--families", "--extra", "m=zoo:svg_prime-tiny-tabletop"],
+     "--data DESK: no --extra model plans in robodesk"),
+    (["--families", "--extra", "m=zoo:svg_prime-tiny-tabletop", "--extra",
+      "n=zoo:svg_prime-tiny-robodesk", "--tasks", "robodesk", "tabletop", "desk/x"],
+     "--tasks desk/x: no --data of that environment"),
+])
+def test_a_split_comparison_refuses_what_it_cannot_place(comparison, tmp_path, argv, message):
+    desk = _fake_dataset(tmp_path / "desk", "robodesk")
+    table = _fake_dataset(tmp_path / "table", "tabletop")
+    argv = ["--smoke", "--data", str(desk), "--data", str(table), *argv]
+    args = comparison.parse_args(argv)
+    with pytest.raises(ValueError) as err:
+        comparison.part_settings(args, argv, args.data)
+    assert message.replace("DESK", str(desk)) in str(err.value)
+    twice = ["--smoke", "--families", "--data", str(desk), "--data", str(desk)]
+    with pytest.raises(ValueError, match="two datasets of one environment"):
+        comparison.part_settings(comparison.parse_args(twice), twice, [desk, desk])
+    with pytest.raises(ValueError, match="not a vp2 dataset"):
+        comparison.dataset_env(tmp_path)
+
+
+@pytest.mark.slow
+def test_a_comparison_over_both_environments_writes_one_page(tmp_path):
+    desk = collect(TINY, tmp_path / "desk", workers=1, progress=False)
+    table = collect(dataclasses.replace(TINY, env="tabletop", streams=None),
+                    tmp_path / "table", workers=1, progress=False)
+    out, page = tmp_path / "cmp", tmp_path / "docs" / "results.md"
+    command = [sys.executable, "-m", MODULE, "--smoke", "--families", "--data", str(desk),
+               "--data", str(table), "--out", str(out), "--threads", "1", "--docs", str(page),
+               "--tasks", TASK, "tabletop/push_sphere",
+               "--extra", "desk_svg=zoo:svg_prime-tiny-robodesk",
+               "--extra", "table_svg=zoo:svg_prime-tiny-tabletop"]  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    proc = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
+    text = page.read_text()
+    assert text.index("## RoboDesk") < text.index("## Tabletop")
+    assert text.count("```bash") == 1 and "--data " + str(table) in text
+    desk_part, table_part = text.split("## Tabletop")
+    # each part's success table: its own task, its own model and the baselines
+    assert _table(desk_part, "| task |")[0][:2] == ["task", "desk_svg"]
+    assert [r[0] for r in _table(desk_part, "| task |")[2:3]] == [TASK]
+    assert _table(table_part, "| task |")[0][:2] == ["task", "table_svg"]
+    assert [r[0] for r in _table(table_part, "| task |")[2:3]] == ["tabletop/push_sphere"]
+    assert "### Success per task" in desk_part and "\n## Success" not in text
+    assert "Incomplete" not in text
+    for env_name in ("robodesk", "tabletop"):
+        assert len(read_trials(out / env_name / "runs" / "random")) == 1
