@@ -63,6 +63,7 @@ from vp2.benchmark.config import RunConfig
 from vp2.benchmark.diagnose import PRECHECK_FILE, precheck_model
 from vp2.benchmark.gifs import write_trial_gifs
 from vp2.benchmark.model_spec import MODEL_DOCS, check_spec
+from vp2.benchmark.partial import partial_path
 from vp2.benchmark.results import Summary, format_summary, is_ok, trial_key, trial_keys
 from vp2.benchmark.run_dir import Records, RunDir
 from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
@@ -267,6 +268,8 @@ def run_benchmark(
                     held.append(record)
                 else:
                     trial_log.append(record)
+                    if record["error"] is None:  # recorded: its progress file is done with
+                        partial_path(run_dir, *job.key).unlink(missing_ok=True)
                 num_run += 1
                 finished += record["error"] is None
                 successes += bool(record.get("success"))

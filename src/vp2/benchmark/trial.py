@@ -17,11 +17,17 @@ import signal
 import threading
 import time
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 
+from vp2.benchmark import partial as partial_module
+from vp2.benchmark.partial import (
+    PartialMismatch,
+    PartialTrial,
+    check_resumable,
+)
 from vp2.data.suite import TaskInstance
 from vp2.envs.base import Env
 from vp2.planning.agent import Agent, Observation, check_agent_for_env
@@ -181,6 +187,19 @@ class ControlTrial:
             outcome is the same; the remaining steps and their frames are skipped.
         env: An environment built from ``instance.env_meta`` to reuse (it is reset to the
             instance's initial state); ``None`` builds one and closes it afterwards.
+        checkpoint: Called with the trial so far (a :class:`~vp2.benchmark.partial.
+            PartialTrial`) after a control step, when ``checkpoint_every_s`` seconds of the
+            trial have passed since the last call; ``None``: never. Only agents with a
+            ``trial_state`` method are checkpointed.
+        resume: A partial trial of this trial to go on from: its actions are stepped again
+            (their success flags must come out the same), the agent gets its state back, and
+            planning goes on from the next step. Raises
+            :class:`~vp2.benchmark.partial.PartialMismatch` when it was made with other
+            settings (``meta``) or does not replay.
+        meta: What identifies this trial's settings beyond the trial's own (the model, the
+            software), stored in checkpoints and compared with ``resume``'s.
+        checkpoint_every_s: See ``checkpoint`` (``None``:
+            :data:`~vp2.benchmark.partial.CHECKPOINT_EVERY_S`).
     """
 
     def __init__(
@@ -191,6 +210,10 @@ class ControlTrial:
         num_steps: int = NUM_CONTROL_STEPS,
         stop_on_success: bool = False,
         env: Env | None = None,
+        checkpoint: Callable[[PartialTrial], None] | None = None,
+        resume: PartialTrial | None = None,
+        meta: dict[str, Any] | None = None,
+        checkpoint_every_s: float | None = None,
     ) -> None:
         if num_steps < 2:
             raise ValueError(f"a trial needs at least 2 control steps, got {num_steps}")
@@ -200,6 +223,24 @@ class ControlTrial:
         self.num_steps = num_steps
         self.stop_on_success = stop_on_success
         self._env = env
+        self.checkpoint = checkpoint if hasattr(agent, "trial_state") else None
+        self.resume = resume
+        self.meta = dict(meta or {})
+        self.checkpoint_every_s = (
+            partial_module.CHECKPOINT_EVERY_S if checkpoint_every_s is None else checkpoint_every_s
+        )
+        #: Control steps that were stepped again from ``resume`` rather than planned.
+        self.resumed_steps = 0
+
+    def trial_meta(self) -> dict[str, Any]:
+        """The settings a checkpoint of this trial is made with (after the agent's reset)."""
+        inst = self.instance
+        return {
+            "task": inst.task, "instance": inst.index, "instance_sha": inst.fingerprint,
+            "seed": self.seed, "num_steps": self.num_steps,
+            "stop_on_success": self.stop_on_success, "agent": self.agent.describe(),
+            **self.meta,
+        }  # fmt: skip
 
     def run(self) -> TrialResult:
         """Plays the trial; exceptions of the agent or the simulator propagate."""
@@ -230,7 +271,32 @@ class ControlTrial:
         scores: list[float | None] = []
         predicted: list[np.ndarray] = []
         env_meta = inst.env_meta
-        for step in range(self.num_steps):
+        meta = self.trial_meta() if (self.checkpoint or self.resume) else {}
+        earlier = 0.0  # seconds the resumed partial trial had run
+        if self.resume is not None:
+            part = self.resume
+            check_resumable(part, meta)
+            t0 = time.perf_counter()
+            for action in part.actions:  # the simulator is deterministic: the same states
+                env.step(action)
+                success_steps.append(bool(env.is_success(inst.goal_state)))
+                frames.append(env.render(size))
+                actions.append(np.asarray(action, dtype=np.float64))
+            env_time += time.perf_counter() - t0
+            if success_steps != [bool(x) for x in part.success_steps]:
+                raise PartialMismatch(
+                    f"stepping the partial trial's {len(actions)} actions again gave the success "
+                    f"flags {success_steps}, the partial trial recorded {part.success_steps}"
+                )
+            agent.load_trial_state(part.agent_state)
+            planning_times, scores = list(part.planning_times), list(part.scores)
+            predicted = list(part.predicted)
+            earlier, env_time = part.elapsed, env_time + part.env_time
+            self.resumed_steps = len(actions)
+        last_write = time.perf_counter()
+        for step in range(len(actions), self.num_steps):
+            if self.stop_on_success and any(success_steps):
+                break
             if step == 0:
                 action = np.zeros(env.action_dim)  # SPEC §4: the first step executes zero
             else:
@@ -254,6 +320,15 @@ class ControlTrial:
             frames.append(env.render(size))
             env_time += time.perf_counter() - t0
             actions.append(action)
+            now = time.perf_counter()
+            if self.checkpoint is not None and now - last_write >= self.checkpoint_every_s:
+                self.checkpoint(PartialTrial(
+                    meta=meta, actions=np.stack(actions), success_steps=list(success_steps),
+                    planning_times=list(planning_times), scores=list(scores),
+                    predicted=list(predicted), agent_state=agent.trial_state(),
+                    env_time=env_time, elapsed=earlier + now - start,
+                ))  # fmt: skip
+                last_write = time.perf_counter()
             if self.stop_on_success and success_steps[-1]:
                 break
         return TrialResult(
@@ -268,7 +343,7 @@ class ControlTrial:
             predicted_frames=np.stack(predicted) if predicted else None,
             planning_times=planning_times,
             env_time=env_time,
-            total_time=time.perf_counter() - start,
+            total_time=earlier + time.perf_counter() - start,
             cost_kind=agent.cost_kind,
             agent=agent.describe(),
             scores=scores,

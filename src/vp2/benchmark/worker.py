@@ -11,12 +11,18 @@ A trial attempt that runs past ``RunConfig.trial_timeout`` is stopped by a ``SIG
 actors run trials there, and a driver that runs them itself (one worker) must be its
 process's main thread. After a timeout the worker rebuilds the environment's model and its
 simulators, which the interrupted trial may have left midway.
+
+The one file a worker writes is its trial's progress (:mod:`vp2.benchmark.partial`,
+``<run>/partial/``), so that a run cut off mid-trial resumes at the step it reached; the
+driver deletes it once the trial's record is written. (On Ray the file lives on the worker's
+machine: a trial resumes mid-way where the run directory is shared.)
 """
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
+import functools
 import logging
 import traceback
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -27,6 +33,13 @@ import torch
 import vp2
 from vp2.benchmark.config import RunConfig
 from vp2.benchmark.model_spec import MODEL_DOCS, model_identity, resolve_model
+from vp2.benchmark.partial import (
+    PartialMismatch,
+    PartialTrial,
+    load_partial,
+    partial_path,
+    save_partial,
+)
 from vp2.benchmark.results import TrialKey
 from vp2.benchmark.trial import ControlTrial, TrialResult, TrialTimeout, can_time_limit, time_limit
 from vp2.data.suite import TaskInstance
@@ -273,17 +286,32 @@ def _attempt_trial(job: Job) -> Outcome:
         record = {**_base_record(job, fallback_identity), "success": None}
         return Outcome(job.key, {**record, "error": error_record(exc, "model_build")}, fatal=True)
     record = _base_record(job, identity)
-    try:
-        trial = ControlTrial(
+    partial_file = partial_path(cfg.out, *job.key)
+    trial_meta = {key: record[key] for key in ("model", "vp2_version", "render_fingerprint")}
+
+    def make_trial(resume: PartialTrial | None) -> ControlTrial:
+        return ControlTrial(
             job.instance,
             agent,
             seed=job.key[2],
             num_steps=cfg.num_steps,
             stop_on_success=cfg.stop_on_success,
             env=env,
+            checkpoint=functools.partial(save_partial, partial_file),
+            resume=resume,
+            meta=trial_meta,
         )
+
+    try:
         with time_limit(cfg.trial_timeout):
-            result = trial.run()
+            trial = make_trial(load_partial(partial_file))
+            try:
+                result = trial.run()
+            except PartialMismatch as exc:  # raised before any planning: start afresh
+                log.warning("trial %s: %s; it starts from its first step", job.key, exc)
+                partial_file.unlink(missing_ok=True)
+                trial = make_trial(None)
+                result = trial.run()
     except (Exception, TrialTimeout) as exc:
         # A simulator that raised may be broken beyond what reset_to repairs: rebuild it (the
         # cache is emptied; the next trials build the simulators they need again). A timeout
@@ -297,5 +325,7 @@ def _attempt_trial(job: Job) -> Outcome:
         )
         return Outcome(job.key, record)
     record.update(result.record())
+    if trial.resumed_steps:
+        record["resumed_at_step"] = trial.resumed_steps
     record["error"] = None
     return Outcome(job.key, record, result=result)

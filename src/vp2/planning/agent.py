@@ -262,6 +262,25 @@ class PlanningAgent:
         self.plan = shift_plan(plan)
         return action, info
 
+    def trial_state(self) -> dict[str, Any]:
+        """What the agent carries from one control step to the next: the warm-start plan, the
+        states of its generators and the optimizer's (for a trial resumed mid-way,
+        :mod:`vp2.benchmark.partial`)."""
+        return {
+            "plan": self.plan.detach().cpu().numpy(),
+            "generator": self.generator.get_state().numpy(),
+            "model_generator": self.model_generator.get_state().numpy(),
+            "optimizer": self.optimizer.trial_state(),
+        }
+
+    def load_trial_state(self, state: dict[str, Any]) -> None:
+        """Restores what :meth:`trial_state` returned (after :meth:`reset` for the trial)."""
+        self.plan = torch.as_tensor(np.asarray(state["plan"]), dtype=self.plan.dtype,
+                                    device=self.device)
+        for name in ("generator", "model_generator"):
+            getattr(self, name).set_state(torch.from_numpy(np.asarray(state[name], np.uint8)))
+        self.optimizer.load_trial_state(state["optimizer"])
+
     def _predict_plan(self, context: Tensor, last_action: Tensor, plan: Tensor) -> np.ndarray:
         """``(T, H, W, 3)`` uint8 predicted frames of one plan (for the plan GIF)."""
         generator = torch.Generator().manual_seed(self._record_seed)
@@ -301,6 +320,13 @@ class RandomActions:
     def act(self, observation: Any) -> tuple[np.ndarray, dict[str, Any]]:
         """A uniform random action ``(A,)``; the observation is ignored."""
         return self._rng.uniform(-1.0, 1.0, self.action_dim), {}
+
+    def trial_state(self) -> dict[str, Any]:
+        """The generator's state (for a trial resumed mid-way)."""
+        return {"rng": self._rng.bit_generator.state}
+
+    def load_trial_state(self, state: dict[str, Any]) -> None:
+        self._rng.bit_generator.state = state["rng"]
 
 
 def check_agent_for_env(agent: Agent, action_dim: int, task: str) -> None:

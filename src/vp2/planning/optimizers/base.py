@@ -193,6 +193,14 @@ class Optimizer(abc.ABC):
         Stateless optimizers keep this default, which does nothing.
         """
 
+    def trial_state(self) -> dict[str, Any]:
+        """The per-trial state carried between planning steps (JSON-able), for a trial resumed
+        mid-way (:mod:`vp2.benchmark.partial`); stateless optimizers have none."""
+        return {}
+
+    def load_trial_state(self, state: dict[str, Any]) -> None:  # noqa: B027 -- stateless default
+        """Restores what :meth:`trial_state` returned."""
+
 
 def check_mean(initial_mean: Tensor) -> Tensor:
     """``initial_mean``, a float ``(H, A)`` tensor (checked), detached and clipped to the box."""

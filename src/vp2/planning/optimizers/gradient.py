@@ -105,6 +105,12 @@ class CEMGD(CEM):
         """Makes the next call use ``num_samples_first`` CEM samples again."""
         self._first_call = True
 
+    def trial_state(self) -> dict[str, Any]:
+        return {"first_call": self._first_call}
+
+    def load_trial_state(self, state: dict[str, Any]) -> None:
+        self._first_call = bool(state["first_call"])
+
     def optimize(
         self, objective: Objective, initial_mean: Tensor, generator: torch.Generator
     ) -> tuple[Tensor, OptimizerInfo]:
