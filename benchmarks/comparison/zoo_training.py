@@ -37,6 +37,7 @@ configuration for the test (``tests/scripts/test_zoo_training.py``).
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import datetime
 import json
@@ -90,6 +91,9 @@ class Settings:
     clock: str  # "cpu": process CPU time; "wall": wall time
     smoke: bool
     command: str
+    #: ``(family, key, value)``: a model setting of the family's predictor changed from its
+    #: preset (``--model-arg``), for a variant trained to its own ``--out``.
+    model_args: tuple[tuple[str, str, Any], ...] = ()
 
 
 def stage_minutes(family: str, level: float, tokenizer_minutes: float) -> list[float]:
@@ -107,6 +111,8 @@ def train_config(s: Settings, family: str, index: int, minutes: float, level: fl
     round ``level``; ``--smoke`` stops round n at step 2n instead, so that it is exact)."""
     stage = FAMILIES[family][index]
     overrides = dict(stage.overrides)
+    if index == len(FAMILIES[family]) - 1:  # the predictor: the variant's settings
+        overrides.update({key: value for f, key, value in s.model_args if f == family})
     if stage.tokenizer:
         prev = FAMILIES[family][index - 1]
         overrides["tokenizer_checkpoint"] = str(final_checkpoint(s.out / "train" / prev.model))
@@ -390,8 +396,36 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="write the zoo card fields of snapshot LABEL (e.g. svg_prime-30min) to "
         "OUT/cards/LABEL.json, for `vp2 zoo add SNAPSHOT --card-from`; train nothing",
     )
+    p.add_argument(
+        "--model-arg",
+        action="append",
+        default=[],
+        metavar="FAMILY:KEY=VALUE",
+        help="a setting of one family's model changed from its preset (e.g. "
+        "struct_vrnn:keypoint_sigma=0.3): a variant, trained to its own --out; repeatable",
+    )
     p.add_argument("--smoke", action="store_true", help="tiny settings for the test")
     return p.parse_args(argv)
+
+
+def parse_model_args(items: Sequence[str], families: Sequence[str]) -> tuple[tuple[str, str, Any], ...]:
+    """``FAMILY:KEY=VALUE`` items -> ``((family, key, value), ...)`` (values as Python
+    literals where they parse, else strings)."""
+    out = []
+    for item in items:
+        family, _, rest = item.partition(":")
+        key, sep, text = rest.partition("=")
+        if not sep or not key or family not in FAMILIES:
+            raise SystemExit(f"--model-arg {item!r}: expected FAMILY:KEY=VALUE with FAMILY one "
+                             f"of {', '.join(FAMILIES)}")
+        if family not in families:
+            raise SystemExit(f"--model-arg {item!r}: {family} is not among --families")
+        try:
+            value = ast.literal_eval(text)
+        except (ValueError, SyntaxError):
+            value = text
+        out.append((family, key, value))
+    return tuple(out)
 
 
 def settings_from_args(args: argparse.Namespace, argv: Sequence[str] | None) -> Settings:
@@ -427,6 +461,7 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str] | None) -> 
         clock=clock,
         smoke=args.smoke,
         command=common.command_line(__spec__.name, argv),
+        model_args=parse_model_args(args.model_arg, args.families),
     )
 
 

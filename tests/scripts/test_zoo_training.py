@@ -15,6 +15,7 @@ from benchmarks.comparison.zoo_training import (
     parse_args,
     settings_from_args,
     stage_minutes,
+    train_config,
 )
 
 from vp2.data.collect import CollectionConfig, collect
@@ -57,6 +58,23 @@ def test_cpu_clock_needs_one_thread_on_a_cpu(tmp_path):
         settings_from_args(args, None)
     args = parse_args(["--data", str(tmp_path), "--threads", "2", "--clock", "wall"])
     assert settings_from_args(args, None).clock == "wall"
+
+
+def test_a_variant_changes_one_familys_model_settings(tmp_path):
+    argv = ["--data", str(tmp_path), "--families", "struct_vrnn", "maskvit", "--model-arg",
+            "struct_vrnn:keypoint_sigma=0.3", "--model-arg", "maskvit:decoding_iterations=3"]
+    s = settings_from_args(parse_args(argv), argv)
+    assert s.model_args == (("struct_vrnn", "keypoint_sigma", 0.3),
+                            ("maskvit", "decoding_iterations", 3))
+    assert train_config(s, "struct_vrnn", 0, 15, 15).model_overrides == {"keypoint_sigma": 0.3}
+    # MaskViT's setting goes to its predictor (the transformer), not to the tokenizer
+    assert train_config(s, "maskvit", 0, 15, 15).model_overrides == {}
+    for bad, says in [("struct_vrnn:keypoint_sigma", "expected FAMILY:KEY=VALUE"),
+                      ("nope:x=1", "expected FAMILY:KEY=VALUE"),
+                      ("fitvid:x=1", "fitvid is not among --families")]:
+        argv = ["--data", str(tmp_path), "--families", "struct_vrnn", "--model-arg", bad]
+        with pytest.raises(SystemExit, match=says):
+            settings_from_args(parse_args(argv), argv)
 
 
 def test_curve_markdown_marks_the_points_above_the_target():
