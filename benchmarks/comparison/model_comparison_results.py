@@ -80,15 +80,7 @@ def results_markdown(
         "```",
         "",
     ]
-    if pending:
-        counts = ", ".join(
-            f"{name} ({_trials_on_disk(out / 'runs' / name)} trials on disk)" for name in pending
-        )
-        lines += [
-            f"**Incomplete**: the runs of {counts} are not finished; their columns, the study and "
-            "the report leave them out until they are. The command above resumes them.",
-            "",
-        ]
+    lines += pending_lines(out, pending)
     lines += body_lines(out, s)
     if notes:
         lines += ["", *reading_lines(notes)]
@@ -104,6 +96,20 @@ def results_markdown(
             f"`report.html` is the `vp2 report` page of every run above ({screenshot_note})."
         )
     return "\n".join(lines) + "\n"
+
+
+def pending_lines(out: Path, pending: Sequence[str]) -> list[str]:
+    """The "Incomplete" paragraph naming the runs not finished yet (none: no lines)."""
+    if not pending:
+        return []
+    counts = ", ".join(
+        f"{name} ({_trials_on_disk(out / 'runs' / name)} trials on disk)" for name in pending
+    )
+    return [
+        f"**Incomplete**: the runs of {counts} are not finished; their columns, the study and "
+        "the report leave them out until they are. The command above resumes them.",
+        "",
+    ]
 
 
 def body_lines(out: Path, s: dict[str, Any]) -> list[str]:
@@ -151,11 +157,7 @@ def combined_markdown(
         pending = [n for n in s["run_names"] if not (out / "runs" / n / "summary.json").is_file()]
         lines += ["", f"## {name}", "",
                   f"Dataset `{s['data']}`, tasks {', '.join(s['tasks'])}; files under `{out}`.", ""]
-        if pending:
-            counts = ", ".join(
-                f"{n} ({_trials_on_disk(out / 'runs' / n)} trials on disk)" for n in pending)
-            lines += [f"**Incomplete**: the runs of {counts} are not finished; the command above "
-                      "resumes them.", ""]
+        lines += pending_lines(out, pending)
         lines += [("#" + line) if line.startswith("## ") else line for line in body_lines(out, s)]
         image = images.get(out)
         lines += ["", f"### The report ({name})", ""]

@@ -37,7 +37,6 @@ configuration for the test (``tests/scripts/test_zoo_training.py``).
 from __future__ import annotations
 
 import argparse
-import ast
 import dataclasses
 import datetime
 import json
@@ -53,6 +52,7 @@ import vp2
 from benchmarks import common
 from benchmarks.comparison.model_comparison import FAMILIES, STEP_CAP, device_name, done_record
 from vp2.benchmark.diagnose_measures import conditioning_errors, held_out_clips, ratio_statistics
+from vp2.benchmark.model_spec import parse_model_args as parse_model_args_of_vp2
 from vp2.benchmark.model_spec import resolve_model
 from vp2.data.datasets import default_dataset
 from vp2.data.storage import load_manifest
@@ -409,21 +409,20 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 
 def parse_model_args(items: Sequence[str], families: Sequence[str]) -> tuple[tuple[str, str, Any], ...]:
-    """``FAMILY:KEY=VALUE`` items -> ``((family, key, value), ...)`` (values as Python
-    literals where they parse, else strings)."""
+    """``FAMILY:KEY=VALUE`` items -> ``((family, key, value), ...)``; ``KEY=VALUE`` is read as
+    ``vp2 run --model-arg`` reads it (:func:`vp2.benchmark.model_spec.parse_model_args`)."""
     out = []
     for item in items:
         family, _, rest = item.partition(":")
-        key, sep, text = rest.partition("=")
-        if not sep or not key or family not in FAMILIES:
+        try:
+            (key, value), = parse_model_args_of_vp2([rest]).items()
+        except ValueError:
+            family = ""
+        if family not in FAMILIES:
             raise SystemExit(f"--model-arg {item!r}: expected FAMILY:KEY=VALUE with FAMILY one "
                              f"of {', '.join(FAMILIES)}")
         if family not in families:
             raise SystemExit(f"--model-arg {item!r}: {family} is not among --families")
-        try:
-            value = ast.literal_eval(text)
-        except (ValueError, SyntaxError):
-            value = text
         out.append((family, key, value))
     return tuple(out)
 
