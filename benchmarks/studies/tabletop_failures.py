@@ -23,13 +23,13 @@ flag against the replay's), so the classes are of trials this machine reproduces
 
 from __future__ import annotations
 
-import json
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from benchmarks import common
+from vp2.benchmark.results import read_trials
 from vp2.utils.io import write_json_atomic
 
 #: Success threshold of the tabletop (SPEC §1.2), metres.
@@ -91,8 +91,7 @@ def analyse(table: Path) -> list[dict]:
 
     suite = TaskSuite.load()
     out = []
-    records = [json.loads(x) for x in (table / "trials.jsonl").read_text().splitlines()]
-    records = [r for r in records if r["task"].startswith("tabletop/")]
+    records = [r for r in read_trials(table) if r["task"].startswith("tabletop/")]
     for i, record in enumerate(records):
         dist, height, pushed, hand = distances(record, suite)
         label = classify(dist, height, pushed)
