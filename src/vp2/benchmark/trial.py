@@ -295,7 +295,7 @@ class ControlTrial:
             self.resumed_steps = len(actions)
         last_write = time.perf_counter()
         for step in range(len(actions), self.num_steps):
-            if self.stop_on_success and any(success_steps):
+            if self.stop_on_success and any(success_steps):  # also a resumed, solved trial
                 break
             if step == 0:
                 action = np.zeros(env.action_dim)  # SPEC §4: the first step executes zero
@@ -329,8 +329,6 @@ class ControlTrial:
                     env_time=env_time, elapsed=earlier + now - start,
                 ))  # fmt: skip
                 last_write = time.perf_counter()
-            if self.stop_on_success and success_steps[-1]:
-                break
         return TrialResult(
             task=inst.task,
             instance=inst.index,
