@@ -85,9 +85,9 @@ def test_table_names_and_dates(tmp_path):
 def test_the_classifier_is_recorded_and_mixed_ones_refused(tmp_path):
     first = {"sha256": "aaaa", "dataset": "data/d", "heldout_accuracy": 0.98}
     meta, trials = build_table([write_oracle_run(tmp_path / "one", classifier=first)])
-    assert meta["classifiers"] == {TASK: first}
+    assert meta["classifiers"] == {TASK: {**first, "weight": 10.0}}
     assert {r["classifier"] for r in trials} == {"aaaa"}
-    assert table_of(meta, trials)["classifiers"] == {TASK: first}
+    assert table_of(meta, trials)["classifiers"] == {TASK: {**first, "weight": 10.0}}
     # Evidence that disagrees with its meta.json is refused when the asset is built.
     with pytest.raises(ValueError, match="planned with classifier 'aaaa', meta.json names 'bbbb'"):
         table_of({**meta, "classifiers": {TASK: {**first, "sha256": "bbbb"}}}, trials)
@@ -99,14 +99,18 @@ def test_the_classifier_is_recorded_and_mixed_ones_refused(tmp_path):
 
 def test_the_classifier_weight_is_recorded_and_mixed_weights_refused(tmp_path):
     first = {"sha256": "aaaa", "dataset": "data/d", "heldout_accuracy": 0.98}
-    # Records from before the weight was recorded join those that name it.
+    # Records from before the weight was recorded planned at the SPEC's weight, 10 (as the
+    # matcher reads them): they join records at 10, and only at 10.
     old = write_oracle_run(tmp_path / "old", {(0, 0): True}, classifier=first)
+    meta, _ = build_table([old])
+    assert meta["classifiers"] == {TASK: {**first, "weight": 10.0}}
+    at_10 = write_oracle_run(tmp_path / "w10", {(0, 2): True}, classifier={**first, "weight": 10.0})
+    meta, _ = build_table([old, at_10])
+    assert meta["classifiers"] == {TASK: {**first, "weight": 10.0}}
     new = write_oracle_run(tmp_path / "new", {(0, 1): False}, classifier={**first, "weight": 1.0})
-    meta, _ = build_table([old, new])
-    assert meta["classifiers"] == {TASK: {**first, "weight": 1.0}}
-    other = write_oracle_run(tmp_path / "w10", {(0, 2): True}, classifier={**first, "weight": 10.0})
-    with pytest.raises(ValueError, match="2 classifier weights"):
-        build_table([new, other])
+    for mixed in ([old, new], [new, at_10]):
+        with pytest.raises(ValueError, match="2 classifier weights"):
+            build_table(mixed)
 
 
 def _other_suite(tmp_path: Path) -> Path:

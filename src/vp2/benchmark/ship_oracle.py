@@ -66,13 +66,15 @@ def _classifier_of(task: str, records: Iterable[dict[str, Any]]) -> dict[str, An
     """The classifier a task's trials planned with (their records' ``agent.classifier``) and
     its weight in the cost; ``{}`` where none was recorded. Trials that used different
     classifiers or weights are refused. Records written before the weight was recorded
-    (``weight`` absent) count as the same classifier at the weight the others name."""
+    (``weight`` absent) planned at the SPEC's weight, the only one ``vp2 run`` used then, and
+    count as that weight (as the matcher reads them, :mod:`vp2.benchmark.oracle_tables`)."""
     provenances = [
         dict(r["agent"]["classifier"])
         for r in records
         if isinstance(r.get("agent"), dict) and r["agent"].get("classifier")
     ]
-    weights = {p.pop("weight") for p in provenances if "weight" in p}
+    weights = {float(spec.ROBODESK_CLASSIFIER_WEIGHT if (w := p.pop("weight", None)) is None else w)
+               for p in provenances}
     seen = {json.dumps(p, sort_keys=True) for p in provenances}
     if len(seen) > 1 or len(weights) > 1:
         what = sorted(seen) + [f"weight {w:g}" for w in sorted(weights)]
