@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import dataclasses
 import random
+import re
 import sys
 from pathlib import Path
 
 import pytest
 import torch
 
+from tests.models.test_zoo import shipped_zoo_names
 from vp2.benchmark.model_spec import (
     ZOO_PREFIX,
     ModelSpec,
@@ -245,7 +247,7 @@ def test_a_zoo_model_resolves_and_its_identity_names_the_entry():
 
 def test_an_unknown_or_altered_zoo_entry_is_refused(tmp_path, monkeypatch):
     with pytest.raises(PluginError, match="model 'zoo:nope': no model 'nope' in the zoo at .*"
-                       "known: fitvid-robodesk-60min, fitvid-tabletop-15min, svg_prime-robodesk-30min, svg_prime-tiny-robodesk, svg_prime-tiny-tabletop;"):
+                       f"known: {re.escape(', '.join(shipped_zoo_names()))};"):
         check_spec("zoo:nope")
     model = build_model("fitvid", "mini", action_dim=4, image_size=32, seed=1)
     write_model_checkpoint(tmp_path / "m.pt", {
