@@ -86,7 +86,7 @@ import logging
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -619,8 +619,10 @@ def screenshot(html: Path, png: Path, width: int = 1200) -> str | None:
 # --------------------------------------------------------------------------- the driver
 
 
-def run_comparison(s: Settings) -> Path:
-    """Runs (or resumes) every stage; returns the path of ``results.md``."""
+def run_comparison(s: Settings, after_publish: Callable[[], object] | None = None) -> Path:
+    """Runs (or resumes) every stage; returns the path of ``results.md``. ``after_publish`` is
+    called each time the page is rewritten (a comparison of several environments rewrites its
+    combined page there, so a build that spans sessions shows what it finished)."""
     if s.publish_only:
         return publish_found(s)
     s.out.mkdir(parents=True, exist_ok=True)
@@ -667,7 +669,12 @@ def run_comparison(s: Settings) -> Path:
         pending = [n for n in order if n not in run_dirs]
         if pending and result.num_run:
             publish(s, run_dirs, metrics_files, stage_log, pending)
-    return publish(s, run_dirs, metrics_files, stage_log, [])
+            if after_publish is not None:
+                after_publish()
+    page = publish(s, run_dirs, metrics_files, stage_log, [])
+    if after_publish is not None:
+        after_publish()
+    return page
 
 
 def publish_found(s: Settings) -> Path:
@@ -1023,11 +1030,19 @@ def part_settings(args: argparse.Namespace, argv: Sequence[str],
 
 
 def run_parts(parts: Sequence[Settings], args: argparse.Namespace) -> Path:
-    """Each environment's comparison in turn, then the page with a part per environment
-    (``--docs``, else ``--out/results.md``). Returns the page."""
+    """Each environment's comparison in turn, and the page with a part per environment
+    (``--docs``, else ``--out/results.md``), rewritten whenever a part rewrites its own: a
+    build cut short (a session's end) leaves a page of what it finished. Returns the page."""
     for part in parts:
-        run_comparison(part)
+        run_comparison(part, after_publish=lambda: write_parts_page(parts, args))
+    return write_parts_page(parts, args)
+
+
+def write_parts_page(parts: Sequence[Settings], args: argparse.Namespace) -> Path:
+    """The page of the parts that have started (their ``comparison.json`` exists), with each
+    part's report screenshot beside it (copied next to ``--docs``). Returns the page."""
     page = args.docs or args.out / "results.md"
+    parts = [p for p in parts if (p.out / "comparison.json").is_file()]
     outs = [p.out for p in parts]
     shots = {}
     for part in parts:

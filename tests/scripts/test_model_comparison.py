@@ -418,6 +418,41 @@ def test_a_split_comparison_refuses_what_it_cannot_place(comparison, tmp_path, a
         comparison.dataset_env(tmp_path)
 
 
+def test_the_page_of_several_environments_follows_each_parts_publishing(comparison, tmp_path,
+                                                                        monkeypatch):
+    """A build that spans sessions: the page is rewritten whenever a part rewrites its own, of
+    the parts that have started, so one cut short in its second part still shows both."""
+    desk = _fake_dataset(tmp_path / "desk", "robodesk")
+    table = _fake_dataset(tmp_path / "table", "tabletop")
+    page = tmp_path / "docs" / "results.md"
+    page.parent.mkdir()
+    argv = ["--smoke", "--families", "--data", str(table), "--data", str(desk),
+            "--out", str(tmp_path / "cmp"), "--docs", str(page),
+            "--extra", "svg=zoo:svg_prime-tiny-tabletop",
+            "--extra", "fit=zoo:fitvid-robodesk-60min"]  # fmt: skip
+    args = comparison.parse_args(argv)
+    parts = comparison.part_settings(args, argv, args.data)
+    monkeypatch.setattr(comparison, "combined_markdown",
+                        lambda outs, shots, notes: " ".join(o.name for o in outs) + "\n")
+    seen = []
+
+    def run_part(part, after_publish=None):
+        part.out.mkdir(parents=True)
+        (part.out / "comparison.json").write_text("{}")
+        after_publish()  # the part published a run
+        seen.append(page.read_text())
+        if part.out.name == "robodesk":
+            raise KeyboardInterrupt  # the session ends in the second part's runs
+        after_publish()
+        seen.append(page.read_text())
+
+    monkeypatch.setattr(comparison, "run_comparison", run_part)
+    with pytest.raises(KeyboardInterrupt):
+        comparison.run_parts(parts, args)
+    assert seen == ["tabletop\n", "tabletop\n", "tabletop robodesk\n"]
+    assert page.read_text() == "tabletop robodesk\n"
+
+
 @pytest.mark.slow
 def test_a_comparison_over_both_environments_writes_one_page(tmp_path):
     desk = collect(TINY, tmp_path / "desk", workers=1, progress=False)
