@@ -84,6 +84,7 @@ import datetime
 import json
 import logging
 import os
+import shutil
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -718,8 +719,12 @@ def publish(
     far (``run_dirs``); ``pending`` names the runs not yet finished. Returns ``results.md``."""
     study_dir = s.out / "study"
     entries = [(n, run_dirs[n], path) for n, path in metrics_files.items() if n in run_dirs]
-    write_study(study(entries), study_dir)
-    stage_log.add("study", "all", "written", entries=len(entries))
+    if entries:
+        write_study(study(entries), study_dir)
+        stage_log.add("study", "all", "written", entries=len(entries))
+    else:  # runs finished beside a build still measuring metrics (--publish-only meanwhile)
+        shutil.rmtree(study_dir, ignore_errors=True)
+        stage_log.add("study", "all", "waits", why="no finished run has its metrics yet")
     labels = [n for n in s.table_names() if n in run_dirs]
     report = write_report(
         [run_dirs[n] for n in labels],

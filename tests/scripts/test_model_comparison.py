@@ -297,6 +297,25 @@ def test_a_malformed_seeds_for_says_what_is_wrong(comparison, item, message):
         _settings(comparison, "--seeds-for", item)
 
 
+def test_runs_finished_before_their_metrics_publish_without_a_study(comparison, tmp_path,
+                                                                     monkeypatch):
+    """A run finished beside a build still measuring metrics (`--publish-only` meanwhile): the
+    page is written, the study waits (a stale one is removed, not shown)."""
+    s = _settings(comparison, "--out", str(tmp_path / "cmp"))
+    (s.out / "study").mkdir(parents=True)
+    (s.out / "study" / "study.json").write_text("{}")
+    monkeypatch.setattr(comparison, "write_report", lambda runs, out, **kw: out)
+    monkeypatch.setattr(comparison, "screenshot", lambda html, png: "no browser")
+    monkeypatch.setattr(comparison, "results_markdown", lambda out, note, pending, *a, **kw:
+                        f"pending {' '.join(pending)}\n")
+    log = comparison.StageLog(s.out)
+    path = comparison.publish(s, {"fitvid": tmp_path / "runs" / "fitvid"}, {}, log, ["mcvd"])
+    assert path.read_text() == "pending mcvd\n"
+    assert not (s.out / "study").exists()
+    (line,) = [x for x in _log(s.out)[-1] if x["stage"] == "study"]
+    assert line["status"] == "waits" and "metrics" in line["why"]
+
+
 def test_the_page_names_the_runs_on_fewer_seeds(tmp_path):
     from benchmarks.comparison.model_comparison_results import success_lines
 
