@@ -1,0 +1,103 @@
+"""How sure is an action-conditioning ratio? Every held-out clip, intervals over trajectories.
+
+The action-conditioning ratio (prediction error under another clip's actions over the clip's
+own, :func:`vp2.benchmark.diagnose_measures.conditioning_errors`) is usually measured on 64
+clips drawn from a dataset's ``valid`` split, with a bootstrap interval over those clips. But
+the clips are windows of a few trajectories (the default RoboDesk dataset's 350 valid clips
+come from 14), so clips of one trajectory are not independent draws, and an interval over
+clips is narrower than the evidence. This study measures the ratio on **every** valid clip
+(or ``--clips`` of them) and gives two 95% intervals: the bootstrap over clips, and the
+bootstrap over trajectories (each resample draws whole trajectories with all their clips).
+
+Example::
+
+    OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.studies.conditioning_by_trajectory \\
+        --model zoo:maskvit-robodesk-120min --data data/robodesk-20x-64px
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from benchmarks import common
+from vp2.benchmark.diagnose_measures import (
+    conditioning_errors,
+    ratio_statistics,
+    select_clip_indices,
+)
+from vp2.benchmark.model_spec import resolve_model
+from vp2.data.loader import ClipDataset
+from vp2.data.storage import load_manifest
+
+CONTEXT, FUTURE = 2, 10
+
+
+def trajectory_interval(true: np.ndarray, shuffled: np.ndarray, trajectory: np.ndarray,
+                        resamples: int = 2000, seed: int = 0) -> tuple[float, float]:
+    """95% interval of ``mean(shuffled) / mean(true)`` resampling whole trajectories."""
+    groups = [np.flatnonzero(trajectory == g) for g in np.unique(trajectory)]
+    rng = np.random.default_rng(seed)
+    ratios = []
+    for _ in range(resamples):
+        rows = np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))])
+        ratios.append(shuffled[rows].mean() / true[rows].mean())
+    low, high = np.percentile(ratios, [2.5, 97.5])
+    return float(low), float(high)
+
+
+def measure(model, data: str, clips: int | None, samples: int, batch: int = 64) -> dict:
+    """The ratio on the chosen valid clips, with its interval over clips and over trajectories."""
+    dataset = ClipDataset(data, split="valid", context=CONTEXT, future=FUTURE)
+    try:
+        indices = (range(len(dataset)) if clips is None
+                   else select_clip_indices(len(dataset), clips, seed=0))
+        items = [dataset[i] for i in indices]
+    finally:
+        dataset.close()
+    frames = torch.stack([it["frames"] for it in items])
+    actions = torch.stack([it["actions"] for it in items]).float()
+    trajectory = np.array([int(it["index"]) for it in items])
+    true, shuffled = [], []
+    for start in range(0, len(items), batch):
+        errors = conditioning_errors(model, frames[start:start + batch],
+                                     actions[start:start + batch], samples, seed=0,
+                                     device=torch.device("cpu"))
+        true.append(np.asarray(errors["true"]))
+        shuffled.append(np.asarray(errors["shuffled"]))
+    true_all, shuffled_all = np.concatenate(true), np.concatenate(shuffled)
+    stats = ratio_statistics(true_all, shuffled_all)
+    return {
+        "clips": len(items),
+        "trajectories": int(len(np.unique(trajectory))),
+        "ratio": stats["ratio"],
+        "clip_interval": [float(x) for x in stats["ci"]],
+        "trajectory_interval": list(trajectory_interval(true_all, shuffled_all, trajectory)),
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = common.argument_parser(__spec__.name, __doc__)
+    parser.add_argument("--model", required=True, nargs="+", help="model specs (zoo:NAME, ...)")
+    parser.add_argument("--data", required=True, help="dataset folder (its valid split)")
+    parser.add_argument("--clips", type=int, help="clips drawn as vp2 diagnose draws them "
+                        "(default: every valid clip)")
+    parser.add_argument("--samples", type=int, default=2, help="sampling seeds per clip")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    env = load_manifest(args.data).get("config", {}).get("env", "robodesk")
+    print("| model | clips | ratio | 95% CI over clips | 95% CI over trajectories |")
+    print("|---|---|---|---|---|")
+    for spec in args.model:
+        dataset = ClipDataset(args.data, split="valid", context=CONTEXT, future=FUTURE)
+        action_dim = dataset.action_dim
+        dataset.close()
+        model = resolve_model(spec, {}, env=env, action_dim=action_dim, device="cpu")
+        r = measure(model, args.data, args.clips, args.samples)
+        c, t = r["clip_interval"], r["trajectory_interval"]
+        print(f"| {spec} | {r['clips']} of {r['trajectories']} trajectories | {r['ratio']:.3f} | "
+              f"[{c[0]:.3f}, {c[1]:.3f}] | [{t[0]:.3f}, {t[1]:.3f}] |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
