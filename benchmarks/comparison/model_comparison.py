@@ -626,6 +626,7 @@ def run_comparison(s: Settings, after_publish: Callable[[], object] | None = Non
     combined page there, so a build that spans sessions shows what it finished)."""
     if s.publish_only:
         return publish_found(s)
+    published = after_publish or (lambda: None)
     s.out.mkdir(parents=True, exist_ok=True)
     stage_log = StageLog(s.out)
     # What results.md reads besides the stages' files: the settings, and what was compared.
@@ -670,11 +671,9 @@ def run_comparison(s: Settings, after_publish: Callable[[], object] | None = Non
         pending = [n for n in order if n not in run_dirs]
         if pending and result.num_run:
             publish(s, run_dirs, metrics_files, stage_log, pending)
-            if after_publish is not None:
-                after_publish()
+            published()
     page = publish(s, run_dirs, metrics_files, stage_log, [])
-    if after_publish is not None:
-        after_publish()
+    published()
     return page
 
 

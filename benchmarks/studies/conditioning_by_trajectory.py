@@ -46,8 +46,9 @@ def trajectory_interval(true: np.ndarray, shuffled: np.ndarray, trajectory: np.n
     return float(low), float(high)
 
 
-def measure(model, data: str, clips: int | None, samples: int, batch: int = 64) -> dict:
-    """The ratio on the chosen valid clips, with its interval over clips and over trajectories."""
+def valid_clips(data: str, clips: int | None) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+    """Frames, actions and trajectory index of every valid clip (or ``clips`` of them, drawn as
+    ``vp2 diagnose`` draws them)."""
     dataset = ClipDataset(data, split="valid", context=CONTEXT, future=FUTURE)
     try:
         indices = (range(len(dataset)) if clips is None
@@ -55,11 +56,16 @@ def measure(model, data: str, clips: int | None, samples: int, batch: int = 64) 
         items = [dataset[i] for i in indices]
     finally:
         dataset.close()
-    frames = torch.stack([it["frames"] for it in items])
-    actions = torch.stack([it["actions"] for it in items]).float()
-    trajectory = np.array([int(it["index"]) for it in items])
+    return (torch.stack([it["frames"] for it in items]),
+            torch.stack([it["actions"] for it in items]).float(),
+            np.array([int(it["index"]) for it in items]))
+
+
+def measure(model, frames: torch.Tensor, actions: torch.Tensor, trajectory: np.ndarray,
+            samples: int, batch: int = 64) -> dict:
+    """The ratio on the clips, with its interval over clips and over trajectories."""
     true, shuffled = [], []
-    for start in range(0, len(items), batch):
+    for start in range(0, len(frames), batch):
         errors = conditioning_errors(model, frames[start:start + batch],
                                      actions[start:start + batch], samples, seed=0,
                                      device=torch.device("cpu"))
@@ -68,7 +74,7 @@ def measure(model, data: str, clips: int | None, samples: int, batch: int = 64) 
     true_all, shuffled_all = np.concatenate(true), np.concatenate(shuffled)
     stats = ratio_statistics(true_all, shuffled_all)
     return {
-        "clips": len(items),
+        "clips": len(frames),
         "trajectories": int(len(np.unique(trajectory))),
         "ratio": stats["ratio"],
         "clip_interval": [float(x) for x in stats["ci"]],
@@ -86,14 +92,12 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     env = load_manifest(args.data).get("config", {}).get("env", "robodesk")
+    frames, actions, trajectory = valid_clips(args.data, args.clips)  # once, for every model
     print("| model | clips | ratio | 95% CI over clips | 95% CI over trajectories |")
     print("|---|---|---|---|---|")
     for spec in args.model:
-        dataset = ClipDataset(args.data, split="valid", context=CONTEXT, future=FUTURE)
-        action_dim = dataset.action_dim
-        dataset.close()
-        model = resolve_model(spec, {}, env=env, action_dim=action_dim, device="cpu")
-        r = measure(model, args.data, args.clips, args.samples)
+        model = resolve_model(spec, {}, env=env, action_dim=actions.shape[-1], device="cpu")
+        r = measure(model, frames, actions, trajectory, args.samples)
         c, t = r["clip_interval"], r["trajectory_interval"]
         print(f"| {spec} | {r['clips']} of {r['trajectories']} trajectories | {r['ratio']:.3f} | "
               f"[{c[0]:.3f}, {c[1]:.3f}] | [{t[0]:.3f}, {t[1]:.3f}] |", flush=True)
