@@ -100,13 +100,12 @@ from benchmarks.comparison.model_comparison_results import (
     relative_link,
     results_markdown,
 )
-from benchmarks.studies.action_conditioning import evaluate as conditioning_errors
-from benchmarks.studies.action_conditioning import held_out_clips, ratio_statistics
 from vp2.benchmark.config import RunConfig
-from vp2.benchmark.diagnose import DiagnoseConfig, diagnose_model
+from vp2.benchmark.diagnose import DiagnoseConfig, diagnose_model, measure_conditioning
 from vp2.benchmark.model_spec import ModelSpec, resolve_model
 from vp2.benchmark.runner import RunResult, run_benchmark
 from vp2.data.storage import DatasetError, load_manifest
+from vp2.envs import env_class
 from vp2.metrics.evaluate import DEFAULT_BATCH_SIZE, evaluate_model, write_metrics
 from vp2.metrics.fvd import FrechetVideoDistance
 from vp2.planning.config import PlannerConfig
@@ -378,64 +377,31 @@ def model_spec(family: str, records: Sequence[dict[str, Any]]) -> str:
 # --------------------------------------------------------------------------- b. conditioning
 
 
-class _OnDevice:
-    """A model's ``predict`` on ``device`` for CPU callers (``action_conditioning.evaluate``
-    passes CPU tensors and a CPU generator, and reads the result with ``.numpy()``)."""
-
-    def __init__(self, model: Any, device: torch.device):
-        self.model, self.device = model, device
-
-    def predict(self, context: torch.Tensor, actions: torch.Tensor, generator=None):
-        gen = None
-        if generator is not None:  # the same seed on the model's device
-            gen = torch.Generator(self.device).manual_seed(generator.initial_seed())
-        pred = self.model.predict(
-            context.to(self.device), actions.to(self.device), generator=gen
-        )  # (B, T, 3, H, W)
-        return pred.float().cpu()
-
-
 def conditioning_stage(s: Settings, family: str, spec: str, stage_log: StageLog) -> None:
-    """True versus shuffled actions on held-out clips: ``conditioning/<family>.json``."""
+    """True versus shuffled actions on held-out clips, measured as ``vp2 diagnose`` measures
+    them (:func:`vp2.benchmark.diagnose.measure_conditioning`, seed 0: the same clips and
+    shuffle): ``conditioning/<family>.json``."""
     path = s.out / "conditioning" / f"{family}.json"
     settings = {
         "model": spec,
         "data": str(s.data),
         "clips": s.conditioning_clips,
         "samples": s.conditioning_samples,
+        "measure": "vp2.benchmark.diagnose.measure_conditioning",
     }
     if done_record(path, settings) is not None:
         stage_log.add("conditioning", family, "done earlier")
         return
     started = time.perf_counter()
-    # The clips benchmarks.studies.action_conditioning picks: a seeded sample of the valid split.
-    frames, actions = held_out_clips(s.data, s.conditioning_clips)  # (N, 12, 3, H, W), (N, 11, A)
     device = torch.device(s.device)
     env = load_manifest(s.data).get("config", {}).get("env", "robodesk")
-    model = resolve_model(spec, {}, env=env, action_dim=actions.shape[-1], device=device)
-    with torch.no_grad():
-        errors = conditioning_errors(
-            _OnDevice(model, device), frames, actions, s.conditioning_samples
-        )
-    record = {
-        "settings": settings,
-        "clips": len(frames),
-        "moving_fraction": errors["moving_fraction"],
-    }
-    for key, true, shuffled in (
-        ("all_pixels", errors["true"], errors["shuffled"]),
-        ("moving_pixels", errors["true_moving"], errors["shuffled_moving"]),
-    ):
-        stats = ratio_statistics(true, shuffled)
-        record[key] = {
-            "true_mse": float(true.mean()),
-            "shuffled_mse": float(shuffled.mean()),
-            **stats,
-            "ci": list(stats["ci"]),
-        }
-    record["seconds"] = time.perf_counter() - started
+    model = resolve_model(spec, {}, env=env, action_dim=int(env_class(env).action_dim),
+                          device=device)
+    result = measure_conditioning(model, s.data, s.conditioning_clips,
+                                  s.conditioning_samples, 0, device)
+    record = {"settings": settings, **result, "seconds": time.perf_counter() - started}
     write_json_atomic(path, json_safe(record))
-    stage_log.add("conditioning", family, "ran", ratio=record["all_pixels"]["ratio"])
+    stage_log.add("conditioning", family, "ran", ratio=record["ratio"])
 
 
 def write_zoo_cards(s: Settings) -> list[Path]:

@@ -306,25 +306,26 @@ def conditioning_lines(out: Path, s: dict[str, Any]) -> list[str]:
     lines = [
         "## Action conditioning (held-out clips)",
         "",
-        "Prediction MSE under each clip's true actions and under another clip's "
-        f"(`benchmarks.studies.action_conditioning`: up to {s['conditioning_clips']} clips of "
-        f"the valid split, {s['conditioning_samples']} sampling seed(s)). A ratio shuffled / true "
-        "above 1: the model uses its actions. Interval: 95% bootstrap over clips; wins: clips "
-        "where the true actions gave the lower error (changing pixels); p: two-sided sign test.",
+        "Prediction MSE under each clip's true actions and under another clip's, measured as "
+        f"`vp2 diagnose` measures it (up to {s['conditioning_clips']} clips of the valid split, "
+        f"{s['conditioning_samples']} sampling seed(s), seed 0: the clips and the ratio of the "
+        "diagnosis and of a zoo card). A ratio shuffled / true above 1: the model uses its "
+        "actions. Interval: 95% bootstrap over clips; wins: clips where the true actions gave "
+        "the lower error (all pixels); p: two-sided sign test on those pairs.",
         "",
         "| family | ratio, all pixels [95% CI] | ratio, changing pixels [95% CI] | wins | p |",
         "|---|---|---|---|---|",
     ]
     for family in [*s["families"], *s.get("extra_models", {})]:
         r = _read(out / "conditioning" / f"{family}.json")
-        if r is None:
+        if r is None or "moving" not in r:  # absent, or a record of an older layout
             lines.append(f"| {family} | – | – | – | – |")
             continue
-        a, m = r["all_pixels"], r["moving_pixels"]
+        m = r["moving"]
         lines.append(
-            f"| {family} | {a['ratio']:.3f} [{a['ci'][0]:.3f}, {a['ci'][1]:.3f}] | "
+            f"| {family} | {r['ratio']:.3f} [{r['ci'][0]:.3f}, {r['ci'][1]:.3f}] | "
             f"{m['ratio']:.3f} [{m['ci'][0]:.3f}, {m['ci'][1]:.3f}] | "
-            f"{m['wins']}/{m['n']} | {m['sign_p']:.2g} |"
+            f"{r['wins']}/{r['clips']} | {r['sign_p']:.2g} |"
         )
     return [*lines, ""]
 

@@ -23,7 +23,7 @@ import time
 import torch
 
 from benchmarks import common
-from benchmarks.studies.action_conditioning import held_out_clips
+from vp2.benchmark.diagnose_measures import held_out_clips
 from vp2.benchmark.model_spec import resolve_model
 from vp2.metrics.image import psnr, ssim
 
@@ -60,7 +60,7 @@ def main() -> None:
     if field is None:
         parser.error(f"--field is required for {name!r} (known: {FIELDS})")
 
-    frames, actions = held_out_clips(args.data, args.clips, seed=args.seed)
+    frames, actions = held_out_clips(args.data, args.clips, args.seed, context=2, future=10)
     env = "tabletop" if actions.shape[-1] == 4 else "robodesk"
     def predict(value: int) -> tuple[torch.Tensor, float]:
         # The checkpoint loaded with an inference override, as `vp2 run --model-arg` does.

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from benchmarks import common
-from benchmarks.studies.action_conditioning import derangement, held_out_clips, ratio_statistics
+from vp2.benchmark.diagnose_measures import derangement, held_out_clips, ratio_statistics
 from vp2.models.registry import load_model
 
 
@@ -47,8 +47,8 @@ def main() -> None:
     torch.set_num_threads(1)
     overrides = {"use_ema": False} if args.raw else None
     model = load_model(args.model, device="cpu", expected_name="mcvd", overrides=overrides)
-    frames, actions = held_out_clips(args.data, args.clips)
     c, w = model.config.num_context, model.config.window
+    frames, actions = held_out_clips(args.data, args.clips, 0, c, model.config.num_future)
     clip = frames[:, : c + w] * 2 - 1
     context, target = clip[:, :c], clip[:, c:].flatten(1, 2)
     cond = model._condition(context, actions[:, : w + 1])
@@ -103,7 +103,7 @@ def compare_actions(model, context, target, actions, grid: int) -> None:
     print(f"| all (simple loss) | {per_clip['true'].mean():.4f} | "
           f"{per_clip['shuffled'].mean():.4f} | **{st['ratio']:.3f}** "
           f"[{st['ci'][0]:.3f}, {st['ci'][1]:.3f}] |")
-    print(f"clips where own < other: {st['wins']}/{st['n']}, sign test p = {st['sign_p']:.2g}")
+    print(f"clips where own < other: {st['wins']}/{st['clips']}, sign test p = {st['sign_p']:.2g}")
 
 
 if __name__ == "__main__":
