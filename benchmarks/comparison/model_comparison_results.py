@@ -310,20 +310,26 @@ def conditioning_lines(out: Path, s: dict[str, Any]) -> list[str]:
         f"`vp2 diagnose` measures it (up to {s['conditioning_clips']} clips of the valid split, "
         f"{s['conditioning_samples']} sampling seed(s), seed 0: the clips and the ratio of the "
         "diagnosis and of a zoo card). A ratio shuffled / true above 1: the model uses its "
-        "actions. Interval: 95% bootstrap over clips; wins: clips where the true actions gave "
-        "the lower error (all pixels); p: two-sided sign test on those pairs.",
+        "actions. Intervals: 95% bootstrap over clips and over the clips' trajectories (whole "
+        "trajectories resampled: the clips of one trajectory are not independent draws); wins: "
+        "clips where the true actions gave the lower error (all pixels); p: two-sided sign "
+        "test on those pairs.",
         "",
-        "| family | ratio, all pixels [95% CI] | ratio, changing pixels [95% CI] | wins | p |",
-        "|---|---|---|---|---|",
+        "| family | ratio, all pixels [95% CI] | 95% CI over trajectories | "
+        "ratio, changing pixels [95% CI] | wins | p |",
+        "|---|---|---|---|---|---|",
     ]
     for family in [*s["families"], *s.get("extra_models", {})]:
         r = _read(out / "conditioning" / f"{family}.json")
         if r is None or "moving" not in r:  # absent, or a record of an older layout
-            lines.append(f"| {family} | – | – | – | – |")
+            lines.append(f"| {family} | – | – | – | – | – |")
             continue
         m = r["moving"]
+        t = ("–" if "trajectory_ci" not in r else
+             f"[{r['trajectory_ci'][0]:.3f}, {r['trajectory_ci'][1]:.3f}] "
+             f"({r['trajectories']} trajectories)")
         lines.append(
-            f"| {family} | {r['ratio']:.3f} [{r['ci'][0]:.3f}, {r['ci'][1]:.3f}] | "
+            f"| {family} | {r['ratio']:.3f} [{r['ci'][0]:.3f}, {r['ci'][1]:.3f}] | {t} | "
             f"{m['ratio']:.3f} [{m['ci'][0]:.3f}, {m['ci'][1]:.3f}] | "
             f"{r['wins']}/{r['clips']} | {r['sign_p']:.2g} |"
         )

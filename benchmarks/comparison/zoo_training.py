@@ -17,16 +17,18 @@ the finished tokenizer).
 
 After each round a family's weights are exported (float16, inference only) to
 ``snapshots/<family>-<L>min.pt`` and its **action conditioning** is measured on held-out clips:
-the prediction error under each clip's true actions and under another clip's
-(:func:`vp2.benchmark.diagnose_measures.conditioning_errors`), the ratio shuffled / true with its
-95% bootstrap interval over clips. The target is an interval wholly above ``--target`` (1.1).
+the prediction error under each clip's true actions and under another clip's, measured as
+``vp2 diagnose`` measures it (:func:`vp2.benchmark.diagnose.measure_conditioning`): the ratio
+shuffled / true with 95% bootstrap intervals over clips and over the clips' trajectories. The
+target is an interval over trajectories wholly above ``--target`` (1.1): the clips are windows
+of a few trajectories, so the interval over clips claims more than they hold.
 
 Layout of ``--out``::
 
     zoo_training.json            settings and the command of the latest invocation
     train/<model>/               `vp2 train` run directories
     snapshots/<family>-<L>min.pt exported weights at the end of round L
-    curve/<family>-<L>min.json   one point of the curve: minutes, steps, ratio, interval
+    curve/<family>-<L>min.json   one point of the curve: minutes, steps, ratio, intervals
     curve.md, curve.svg          the table and the chart of every point so far
 
 Each point records the settings it was made with; a second invocation with other settings for
@@ -51,12 +53,12 @@ import torch
 import vp2
 from benchmarks import common
 from benchmarks.comparison.model_comparison import FAMILIES, STEP_CAP, device_name, done_record
-from vp2.benchmark.diagnose_measures import conditioning_errors, held_out_clips, ratio_statistics
+from vp2.benchmark.diagnose import measure_conditioning
 from vp2.benchmark.model_spec import parse_model_args as parse_model_args_of_vp2
 from vp2.benchmark.model_spec import resolve_model
 from vp2.data.datasets import default_dataset
 from vp2.data.storage import load_manifest
-from vp2.envs import ENV_NAMES
+from vp2.envs import ENV_NAMES, env_class
 from vp2.report.charts import line_chart
 from vp2.training import trainer as trainer_module
 from vp2.training.checkpoint import list_checkpoints
@@ -67,7 +69,6 @@ from vp2.utils.io import atomic_path, json_safe, write_json_atomic
 from vp2.utils.tensors import resolve_device
 
 #: Context and predicted frames of the held-out clips (the planner's 2 and 10).
-CONTEXT, FUTURE = 2, 10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,14 +198,13 @@ def point(s: Settings, family: str, level: float) -> dict[str, Any] | None:
     snapshot.parent.mkdir(parents=True, exist_ok=True)
     export_checkpoint(info["checkpoint"], snapshot)
     spec = f"{info['model']}:{snapshot}"
-    frames, actions = held_out_clips(s.data, s.clips, seed=0, context=CONTEXT, future=FUTURE)
     env = load_manifest(s.data).get("config", {}).get("env", "robodesk")
     device = torch.device(s.device)
-    model = resolve_model(spec, {}, env=env, action_dim=actions.shape[-1], device=device)
+    model = resolve_model(spec, {}, env=env, action_dim=int(env_class(env).action_dim),
+                          device=device)
     measured = time.perf_counter()
-    errors = conditioning_errors(model, frames, actions, s.samples, seed=0, device=device)
-    stats = ratio_statistics(errors["true"], errors["shuffled"])
-    moving = ratio_statistics(errors["true_moving"], errors["shuffled_moving"])
+    stats = measure_conditioning(model, s.data, s.clips, s.samples, 0, device)
+    moving = stats.pop("moving")
     record = {
         "settings": settings,
         "family": family,
@@ -216,7 +216,7 @@ def point(s: Settings, family: str, level: float) -> dict[str, Any] | None:
         "valid": info["valid"],
         "conditioning": stats,
         "conditioning_moving": moving,
-        "above_target": stats["ci"][0] > s.target,
+        "above_target": target_interval(stats)[0] > s.target,
         "device": device_name(s.device),
         "threads": torch.get_num_threads(),
         "conditioning_seconds": time.perf_counter() - measured,
@@ -225,6 +225,17 @@ def point(s: Settings, family: str, level: float) -> dict[str, Any] | None:
     }
     write_json_atomic(path, json_safe(record))
     return record
+
+
+def target_interval(c: dict[str, Any]) -> list[float]:
+    """The interval the target is judged on: over the clips' trajectories where measured (the
+    clips of one trajectory are not independent draws), else over clips (points measured
+    before the trajectory interval existed)."""
+    return c.get("trajectory_ci") or c["ci"]
+
+
+def _interval(c: dict[str, Any], key: str) -> str:
+    return "–" if key not in c else f"[{c[key][0]:.3f}, {c[key][1]:.3f}]"
 
 
 def read_points(out: Path) -> list[dict[str, Any]]:
@@ -240,21 +251,23 @@ def curve_markdown(points: Sequence[dict[str, Any]], target: float, command: str
         "",
         f"Command: `{command}`",
         "",
-        "Ratio of held-out prediction error under shuffled vs true actions (95% bootstrap "
-        f"interval over clips); target: interval wholly above {target:g}.",
+        "Ratio of held-out prediction error under shuffled vs true actions, with 95% bootstrap "
+        "intervals over clips and over the clips' trajectories (whole trajectories resampled; "
+        "– where a point predates that interval); target: the interval over trajectories (else "
+        f"over clips) wholly above {target:g}.",
         "",
-        "| family | budget (min) | minutes used | steps | ratio [95% CI] | changing pixels | "
-        "wins | valid MSE | above target |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| family | budget (min) | minutes used | steps | ratio | 95% CI, clips | "
+        "95% CI, trajectories | changing pixels | wins | valid MSE | above target |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in points:
         c, m = r["conditioning"], r["conditioning_moving"]
         mse = r.get("valid", {}).get("valid/pred_mse")
         lines.append(
             f"| {r['family']} | {r['level_minutes']:g} | {r['train_minutes']:.1f} | {r['step']} | "
-            f"{c['ratio']:.3f} [{c['ci'][0]:.3f}, {c['ci'][1]:.3f}] | {m['ratio']:.3f} | "
-            f"{c['wins']}/{c['clips']} | {'–' if mse is None else f'{mse:.5f}'} | "
-            f"{'yes' if r['above_target'] else 'no'} |"
+            f"{c['ratio']:.3f} | {_interval(c, 'ci')} | {_interval(c, 'trajectory_ci')} | "
+            f"{m['ratio']:.3f} | {c['wins']}/{c['clips']} | "
+            f"{'–' if mse is None else f'{mse:.5f}'} | {'yes' if r['above_target'] else 'no'} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -265,7 +278,7 @@ def curve_svg(points: Sequence[dict[str, Any]], target: float, clock: str = "cpu
     for r in points:
         c = r["conditioning"]
         series.setdefault(r["family"], []).append(
-            (r["train_minutes"], c["ratio"], c["ci"][0], c["ci"][1])
+            (r["train_minutes"], c["ratio"], *target_interval(c))
         )
     return line_chart(
         series,
@@ -335,6 +348,10 @@ def card_fields(record: dict[str, Any], command: str) -> dict[str, Any]:
             "ratio": round(c["ratio"], 3),
             "interval": [round(c["ci"][0], 3), round(c["ci"][1], 3)],
             "clips": c["clips"],
+            **({} if "trajectory_ci" not in c else {
+                "trajectory_interval": [round(v, 3) for v in c["trajectory_ci"]],
+                "trajectories": c["trajectories"],
+            }),
             "samples": record["settings"]["samples"],
             "changing_pixels": {"ratio": round(moving["ratio"], 3),
                                 "interval": [round(v, 3) for v in moving["ci"]]},

@@ -2,12 +2,14 @@
 
 The action-conditioning ratio (prediction error under another clip's actions over the clip's
 own, :func:`vp2.benchmark.diagnose_measures.conditioning_errors`) is usually measured on 64
-clips drawn from a dataset's ``valid`` split, with a bootstrap interval over those clips. But
-the clips are windows of a few trajectories (the default RoboDesk dataset's 350 valid clips
-come from 14), so clips of one trajectory are not independent draws, and an interval over
-clips is narrower than the evidence. This study measures the ratio on **every** valid clip
-(or ``--clips`` of them) and gives two 95% intervals: the bootstrap over clips, and the
-bootstrap over trajectories (each resample draws whole trajectories with all their clips).
+clips drawn from a dataset's ``valid`` split. The clips are windows of a few trajectories (the
+default RoboDesk dataset's 350 valid clips come from 14), so clips of one trajectory are not
+independent draws, and an interval over clips is narrower than the evidence; ``vp2 diagnose``
+therefore gives an interval over the clips' trajectories beside it
+(:func:`vp2.benchmark.diagnose_measures.trajectory_interval`). This study measures the ratio on
+**every** valid clip (or ``--clips`` of them) with both 95% intervals: the bootstrap over
+clips, and the bootstrap over trajectories (each resample draws whole trajectories with all
+their clips).
 
 Example::
 
@@ -33,19 +35,6 @@ from vp2.data.storage import load_manifest
 CONTEXT, FUTURE = 2, 10
 
 
-def trajectory_interval(true: np.ndarray, shuffled: np.ndarray, trajectory: np.ndarray,
-                        resamples: int = 2000, seed: int = 0) -> tuple[float, float]:
-    """95% interval of ``mean(shuffled) / mean(true)`` resampling whole trajectories."""
-    groups = [np.flatnonzero(trajectory == g) for g in np.unique(trajectory)]
-    rng = np.random.default_rng(seed)
-    ratios = []
-    for _ in range(resamples):
-        rows = np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))])
-        ratios.append(shuffled[rows].mean() / true[rows].mean())
-    low, high = np.percentile(ratios, [2.5, 97.5])
-    return float(low), float(high)
-
-
 def valid_clips(data: str, clips: int | None) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
     """Frames, actions and trajectory index of every valid clip (or ``clips`` of them, drawn as
     ``vp2 diagnose`` draws them)."""
@@ -54,11 +43,12 @@ def valid_clips(data: str, clips: int | None) -> tuple[torch.Tensor, torch.Tenso
         indices = (range(len(dataset)) if clips is None
                    else select_clip_indices(len(dataset), clips, seed=0))
         items = [dataset[i] for i in indices]
+        trajectory = np.array([dataset.trajectory(i) for i in indices])
     finally:
         dataset.close()
     return (torch.stack([it["frames"] for it in items]),
             torch.stack([it["actions"] for it in items]).float(),
-            np.array([int(it["index"]) for it in items]))
+            trajectory)
 
 
 def measure(model, frames: torch.Tensor, actions: torch.Tensor, trajectory: np.ndarray,
@@ -72,13 +62,13 @@ def measure(model, frames: torch.Tensor, actions: torch.Tensor, trajectory: np.n
         true.append(np.asarray(errors["true"]))
         shuffled.append(np.asarray(errors["shuffled"]))
     true_all, shuffled_all = np.concatenate(true), np.concatenate(shuffled)
-    stats = ratio_statistics(true_all, shuffled_all)
+    stats = ratio_statistics(true_all, shuffled_all, trajectory=trajectory)
     return {
         "clips": len(frames),
-        "trajectories": int(len(np.unique(trajectory))),
+        "trajectories": stats["trajectories"],
         "ratio": stats["ratio"],
-        "clip_interval": [float(x) for x in stats["ci"]],
-        "trajectory_interval": list(trajectory_interval(true_all, shuffled_all, trajectory)),
+        "clip_interval": stats["ci"],
+        "trajectory_interval": stats["trajectory_ci"],
     }
 
 

@@ -38,6 +38,7 @@ from vp2.benchmark.diagnose_measures import (
     simulator_scores,
     spearman,
     step_context,
+    trajectory_interval,
 )
 from vp2.data.suite import TaskSuite
 from vp2.planning.config import PlannerConfig
@@ -143,6 +144,25 @@ def test_statistics():
     better = ratio_statistics(np.full(10, 0.1), np.full(10, 0.2))
     assert better["ratio"] == pytest.approx(2.0) and better["wins"] == 10
     assert better["sign_p"] == pytest.approx(2 / 2**10)
+    assert "trajectory_ci" not in better  # only given the clips' trajectories
+
+
+def test_the_interval_over_trajectories_resamples_whole_trajectories():
+    trajectory = np.repeat(np.arange(4), 5)  # 4 trajectories of 5 clips each
+    true = np.ones(20)
+    assert trajectory_interval(true, 1.2 * true, trajectory) == pytest.approx([1.2, 1.2])
+    # Each trajectory has its own ratio (1.0, 1.1, 1.3, 1.6), the same on all its clips: the
+    # interval spans whole trajectories' ratios, wider than the one over the 20 clips.
+    shuffled = np.repeat([1.0, 1.1, 1.3, 1.6], 5)
+    stats = ratio_statistics(true, shuffled, trajectory=trajectory)
+    low, high = stats["trajectory_ci"]
+    assert stats["trajectories"] == 4 and stats["ratio"] == pytest.approx(1.25)
+    assert 1.0 <= low < 1.25 < high <= 1.6 and high - low > 0.3
+    assert high - low > stats["ci"][1] - stats["ci"][0]
+    # A single trajectory resamples to itself.
+    assert trajectory_interval(true[:5], shuffled[:5], trajectory[:5]) == pytest.approx([1.0, 1.0])
+    with pytest.raises(ValueError, match="3 trajectory ids for 20 clips"):
+        trajectory_interval(true, shuffled, trajectory[:3])
 
 
 # --------------------------------------------------------------------------- verdicts
@@ -152,6 +172,9 @@ def test_a_model_that_uses_its_actions_and_one_that_ignores_them(data, suite):
     uses = _diagnose(f"{HERE}:ShiftModel", data, suite)
     c = uses["action_conditioning"]
     assert c["clips"] == 10 and c["ci"][0] > 1.5 and c["wins"] == 10
+    # The 10 valid clips are cut from 2 trajectories (every 3rd of 6 held out), 5 each.
+    assert c["trajectories"] == 2 and c["trajectory_ci"][0] > 1.5
+    assert c["moving"]["trajectory_ci"][0] > 1.0
     rows = uses["planning"]["instances"]
     assert len(rows) == 2 and all(r["of"] == 17 and r["rank"] is not None for r in rows)
     assert uses["planning"]["repeatability"]["median_rho"] == pytest.approx(1.0)  # deterministic
@@ -212,7 +235,8 @@ def test_repeat_last_frame_report(data, suite, tmp_path):
     assert saved["predicted_control_score"] is None
     assert saved["predicted_control_score_reason"] == NO_TABLETOP_PREDICTOR
     assert set(saved["action_conditioning"]) >= {"ratio", "ci", "mse_true", "mse_shuffled",
-                                                 "wins", "clips", "sign_p", "moving"}
+                                                 "wins", "clips", "sign_p", "moving",
+                                                 "trajectories", "trajectory_ci"}
     assert set(saved["planning"]) == {"instances", "scripted_plan", "repeatability", "spread",
                                       "direction", "oracle_agreement"}
     assert set(saved["timing"]) == {"model_s", "conditioning_s", "planning_s", "oracle_s",

@@ -32,27 +32,28 @@ def test_list_shows_the_shipped_model(capsys, monkeypatch):
     assert head.split() == ["name", "family", "preset", "env", "params", "action",
                             "conditioning", "metrics", "control"]
     assert row.split() == [SHIPPED, "svg_prime", "m0.25k0.25", "robodesk", "1.65", "M",
-                           "1.60x", "[1.49,", "1.72]", "lpips", "ssim", "psnr", "mse", "robodesk",
+                           "1.60x", "[1.49,", "1.72]", "over", "clips", "lpips", "ssim", "psnr", "mse", "robodesk",
                            "3/7", "(43%)"]
     assert "!" not in out  # every entry's checkpoint matches its card
     # The zoo training's SVG' after 30 core-minutes, with its card from the files that measured it.
     (row,) = [line for line in out.splitlines() if line.startswith("svg_prime-robodesk-30min ")]
-    assert row.split()[6:] == ["1.32x", "[1.20,", "1.45]", "lpips", "ssim", "psnr", "mse",
+    assert row.split()[6:] == ["1.32x", "[1.20,", "1.45]", "over", "clips", "lpips", "ssim", "psnr", "mse",
                                "robodesk", "6/14", "(43%)"]
     # The shipped tabletop model: its card names vp2 main's checkpoint file.
     (row,) = [line for line in out.splitlines() if line.startswith("svg_prime-tiny-tabletop ")]
-    assert row.split()[3:] == ["tabletop", "1.65", "M", "1.63x", "[1.50,", "1.76]", "lpips",
+    assert row.split()[3:] == ["tabletop", "1.65", "M", "1.63x", "[1.50,", "1.76]", "over", "clips", "lpips",
                                "ssim", "psnr", "mse", "tabletop", "0/8", "(0%)"]
     assert get_card("svg_prime-tiny-tabletop").checkpoint_path.name == "svg_prime_tiny_tabletop.pt"
     # FitVid after 60 core-minutes of the RoboDesk zoo training.
     (row,) = [line for line in out.splitlines() if line.startswith("fitvid-robodesk-60min ")]
     assert row.split()[1:] == ["fitvid", "mini", "robodesk", "1.52", "M", "1.23x", "[1.14,",
-                               "1.33]", "lpips", "ssim", "psnr", "mse", "robodesk", "1/7",
+                               "1.33]", "over", "clips", "lpips", "ssim", "psnr", "mse", "robodesk", "1/7",
                                "(14%)"]
     # A second tabletop family: FitVid after 15 core-minutes of the zoo training.
     (row,) = [line for line in out.splitlines() if line.startswith("fitvid-tabletop-15min ")]
     assert row.split()[1:] == ["fitvid", "mini", "tabletop", "1.52", "M", "1.22x", "[1.16,",
-                               "1.28]", "lpips", "ssim", "psnr", "mse", "tabletop", "2/8", "(25%)"]
+                               "1.28]", "over", "clips", "lpips", "ssim", "psnr", "mse", "tabletop", "2/8",
+                               "(25%)"]
 
 
 def test_show_prints_the_whole_card(capsys):
@@ -120,7 +121,7 @@ def test_add_then_list_show_and_load(capsys, tmp_path, monkeypatch):
     code, out, _ = _vp2(capsys, "zoo", "list")
     (row,) = [line for line in out.splitlines() if line.startswith("tiny ")]
     assert row.split()[1:] == ["struct_vrnn", "tiny", "robodesk", "0.09", "M", "1.25x", "[1.10,",
-                               "1.40]", "not", "measured", "not", "measured"]
+                               "1.40]", "over", "clips", "not", "measured", "not", "measured"]
     code, out, _ = _vp2(capsys, "zoo", "show", "tiny")
     assert "control: not measured" in out and "device: not recorded" in out
     # Known: refused without --force; --float32 keeps the weights as trained.

@@ -1,21 +1,23 @@
-"""The interval over trajectories of benchmarks/studies/conditioning_by_trajectory.py."""
+"""benchmarks/studies/conditioning_by_trajectory.py: every valid clip, intervals over trajectories."""
 
 from __future__ import annotations
 
 import numpy as np
-import pytest
-from benchmarks.studies.conditioning_by_trajectory import trajectory_interval
+from benchmarks.studies.conditioning_by_trajectory import measure, valid_clips
+
+from tests.models.synthetic import write_moving_square_dataset
+from vp2.benchmark.model_spec import resolve_model
 
 
-def test_equal_trajectories_give_a_point_and_unequal_ones_a_wider_interval_than_clips():
-    trajectory = np.repeat(np.arange(4), 5)  # 4 trajectories of 5 clips each
-    true = np.ones(20)
-    assert trajectory_interval(true, 1.2 * true, trajectory) == pytest.approx((1.2, 1.2))
-    # Each trajectory has its own ratio (1.0, 1.1, 1.3, 1.6), identical across its clips: the
-    # interval spans whole trajectories' ratios, not the 20 clips' average behaviour.
-    shuffled = np.repeat([1.0, 1.1, 1.3, 1.6], 5)
-    low, high = trajectory_interval(true, shuffled, trajectory)
-    assert 1.0 <= low < 1.25 < high <= 1.6
-    assert high - low > 0.3
-    # A single trajectory resamples to itself.
-    assert trajectory_interval(true[:5], shuffled[:5], trajectory[:5]) == pytest.approx((1.0, 1.0))
+def test_every_valid_clip_with_its_trajectory_and_both_intervals(tmp_path):
+    # 6 trajectories of 16 frames, every 3rd held out: 2 valid trajectories of 5 clips each.
+    data = write_moving_square_dataset(tmp_path / "squares", size=64, action_dim=4)
+    frames, actions, trajectory = valid_clips(str(data), None)
+    assert frames.shape == (10, 12, 3, 64, 64) and actions.shape == (10, 11, 4)
+    assert np.bincount(trajectory).tolist() == [5, 5]
+    model = resolve_model("tests.benchmark.test_diagnose:ShiftModel", {}, env="tabletop",
+                          action_dim=4, device="cpu")
+    r = measure(model, frames, actions, trajectory, samples=1, batch=4)
+    assert r["clips"] == 10 and r["trajectories"] == 2
+    for low, high in (r["clip_interval"], r["trajectory_interval"]):
+        assert 1.5 < low <= r["ratio"] <= high

@@ -104,6 +104,9 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
             assert math.isfinite(stats["ratio"]) and low <= stats["ratio"] <= high
         assert r["clips"] == 5  # every held-out clip of the tiny dataset
         assert f"| {family} | {r['ratio']:.3f} [" in results
+        low, high = r["trajectory_ci"]
+        assert low <= r["ratio"] <= high
+        assert f"[{low:.3f}, {high:.3f}] ({r['trajectories']} trajectories)" in results
     # Metrics of every predictor; the study ranked them; the report page exists.
     for name in (*FAMILIES, EXTRA[0], "repeat_last_frame"):
         metrics = json.loads((out / "metrics" / name / "metrics.json").read_text())

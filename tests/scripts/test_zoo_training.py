@@ -15,6 +15,7 @@ from benchmarks.comparison.zoo_training import (
     parse_args,
     settings_from_args,
     stage_minutes,
+    target_interval,
     train_config,
 )
 
@@ -80,14 +81,23 @@ def test_a_variant_changes_one_familys_model_settings(tmp_path):
 def test_curve_markdown_marks_the_points_above_the_target():
     point = {
         "family": "fitvid", "level_minutes": 15, "train_minutes": 15.02, "step": 812,
-        "conditioning": {"ratio": 1.31, "ci": [1.2, 1.4], "wins": 60, "clips": 64},
+        "conditioning": {"ratio": 1.31, "ci": [1.2, 1.4], "wins": 60, "clips": 64,
+                         "trajectory_ci": [1.15, 1.5], "trajectories": 14},
         "conditioning_moving": {"ratio": 1.25}, "valid": {"valid/pred_mse": 0.00421},
         "above_target": True,
     }  # fmt: skip
-    rows = [line for line in curve_markdown([point], 1.1, "cmd").splitlines() if "fitvid" in line]
+    older = {**point, "family": "maskvit", "above_target": False,
+             "conditioning": {"ratio": 1.05, "ci": [1.0, 1.1], "wins": 40, "clips": 64}}
+    rows = [line for line in curve_markdown([point, older], 1.1, "cmd").splitlines()
+            if line.startswith(("| fitvid", "| maskvit"))]
     assert rows == [
-        "| fitvid | 15 | 15.0 | 812 | 1.310 [1.200, 1.400] | 1.250 | 60/64 | 0.00421 | yes |"
+        "| fitvid | 15 | 15.0 | 812 | 1.310 | [1.200, 1.400] | [1.150, 1.500] | 1.250 | 60/64 | "
+        "0.00421 | yes |",
+        "| maskvit | 15 | 15.0 | 812 | 1.050 | [1.000, 1.100] | – | 1.250 | 40/64 | 0.00421 | no |",
     ]
+    # The target is judged on the interval over trajectories where a point has it.
+    assert target_interval(point["conditioning"]) == [1.15, 1.5]
+    assert target_interval(older["conditioning"]) == [1.0, 1.1]
 
 
 @pytest.mark.slow
@@ -101,6 +111,9 @@ def test_rounds_train_every_family_in_turn_and_resume(tmp_path):
     assert point["settings"]["clock"] == "cpu"  # a budget minute is a core-minute on a CPU
     lo, hi = point["conditioning"]["ci"]
     assert lo <= point["conditioning"]["ratio"] <= hi
+    lo, hi = point["conditioning"]["trajectory_ci"]  # the tiny dataset's valid trajectories
+    assert lo <= point["conditioning"]["ratio"] <= hi and point["conditioning"]["trajectories"] >= 1
+    assert point["above_target"] == (lo > 1.1)
     assert (out / "snapshots" / "svg_prime-1min.pt").is_file()
 
     # The same command with one more round: round 1 is read back, round 2 resumes at step 2.
@@ -127,7 +140,8 @@ def test_card_fields_of_a_round_make_a_valid_zoo_card(tmp_path):
     from vp2.models.zoo import add_to_zoo
 
     stats = {"ratio": 1.3204, "ci": [1.1985, 1.4459], "clips": 64, "wins": 58, "ties": 0,
-             "sign_p": 9.03e-12, "mse_true": 0.006424, "mse_shuffled": 0.008482}
+             "sign_p": 9.03e-12, "mse_true": 0.006424, "mse_shuffled": 0.008482,
+             "trajectory_ci": [1.1512, 1.5033], "trajectories": 14}
     record = {"conditioning": stats, "conditioning_moving": {**stats, "ratio": 1.35},
               "family": "struct_vrnn", "level_minutes": 30.0, "date": "2026-11-26T10:31:43+00:00",
               "device": "cpu (test)", "train_minutes": 30.016, "step": 1514,
@@ -139,5 +153,7 @@ def test_card_fields_of_a_round_make_a_valid_zoo_card(tmp_path):
     card = add_to_zoo(make_checkpoint(tmp_path / "m.pt"), "t", fields, tmp_path / "zoo")
     assert card.action_conditioning["ratio"] == 1.32
     assert card.action_conditioning["interval"] == [1.198, 1.446]
+    assert card.action_conditioning["trajectory_interval"] == [1.151, 1.503]
+    assert card.action_conditioning["trajectories"] == 14
     assert card.action_conditioning["true_wins"] == "58 of 64 clips (sign test p = 9e-12)"
     assert card.not_measured() == ["metrics", "control"] and card.device == "cpu (test)"

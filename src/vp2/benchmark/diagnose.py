@@ -54,6 +54,7 @@ from vp2.benchmark.config import RunConfig
 from vp2.benchmark.diagnose_measures import (
     conditioning_errors,
     held_out_clips,
+    held_out_trajectories,
     oracle_cache_dir,
     probe_instance,
     ratio_statistics,
@@ -207,18 +208,22 @@ def measure_conditioning(
     on_call: Any = None,
 ) -> dict[str, Any]:
     """The action-conditioning measure of a built, checked model on ``data``'s held-out clips:
-    :func:`~vp2.benchmark.diagnose_measures.ratio_statistics` of all pixels, with the changing
-    pixels' under ``moving``."""
+    :func:`~vp2.benchmark.diagnose_measures.ratio_statistics` of all pixels (intervals over
+    clips and over the clips' trajectories), with the changing pixels' under ``moving``."""
     frames, actions = held_out_clips(
         data, clips, seed, int(model.num_context), int(model.num_future)
     )
     _check_clips_fit(model, frames, actions, data)
+    trajectory = held_out_trajectories(
+        data, clips, seed, int(model.num_context), int(model.num_future)
+    )
     errors = conditioning_errors(model, frames, actions, sampling_seeds, seed, device, on_call)
-    result = ratio_statistics(errors["true"], errors["shuffled"], seed)
-    moving = ratio_statistics(errors["true_moving"], errors["shuffled_moving"], seed)
+    result = ratio_statistics(errors["true"], errors["shuffled"], seed, trajectory)
+    moving = ratio_statistics(errors["true_moving"], errors["shuffled_moving"], seed, trajectory)
+    keep = ("ratio", "ci", "trajectory_ci", "mse_true", "mse_shuffled", "wins")
     return {
         **result,
-        "moving": {k: moving[k] for k in ("ratio", "ci", "mse_true", "mse_shuffled", "wins")},
+        "moving": {k: moving[k] for k in keep},
         "sampling_seeds": sampling_seeds,
         "dataset": str(data),
     }

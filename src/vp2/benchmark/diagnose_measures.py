@@ -3,7 +3,8 @@
 * :func:`held_out_clips` and :func:`conditioning_errors`: per-clip prediction error under each
   clip's true actions and under another clip's (a derangement), on the valid split of a
   dataset; :func:`ratio_statistics` turns the pairs into the ratio shuffled / true with a 95%
-  bootstrap interval over clips, the clips won by the true actions and the sign test's p.
+  bootstrap interval over clips and one over trajectories (:func:`held_out_trajectories`,
+  :func:`trajectory_interval`), the clips won by the true actions and the sign test's p.
 * :func:`probe_instance`: a trial's first planning step on one task instance. The planner's
   sampler draws the candidates the trial would draw, the instance's scripted plan is appended,
   and the model and the task's cost score the batch twice, with two model seeds. Per instance:
@@ -89,6 +90,19 @@ def held_out_clips(
     return frames, torch.stack([it["actions"] for it in items]).float()
 
 
+def held_out_trajectories(
+    data: str | Path, num_clips: int, seed: int, context: int, future: int
+) -> np.ndarray:
+    """The trajectory of each clip :func:`held_out_clips` returns with the same arguments, as
+    ``(N,)`` integers (equal for clips of one trajectory); reads no frames."""
+    dataset = ClipDataset(data, split="valid", context=context, future=future)
+    try:
+        chosen = select_clip_indices(len(dataset), num_clips, seed)
+        return np.array([dataset.trajectory(i) for i in chosen], dtype=np.int64)
+    finally:
+        dataset.close()
+
+
 def derangement(n: int, rng: np.random.Generator) -> np.ndarray:
     """A random permutation of ``range(n)`` that moves every element (``n >= 2``)."""
     if n < 2:
@@ -152,10 +166,34 @@ def _ratio(shuffled: np.ndarray, true: np.ndarray) -> np.ndarray:
     return np.where(both_zero, 1.0, r)
 
 
-def ratio_statistics(true: np.ndarray, shuffled: np.ndarray, seed: int = 0) -> dict[str, Any]:
+def trajectory_interval(
+    true: np.ndarray, shuffled: np.ndarray, trajectory: np.ndarray, seed: int = 0
+) -> list[float]:
+    """95% bootstrap interval of ``mean(shuffled) / mean(true)`` that resamples whole
+    trajectories (each draw takes a trajectory with all of its clips), :data:`BOOTSTRAP_RESAMPLES`
+    times. Clips cut from one trajectory are not independent draws, so this interval is the
+    honest one when the clips come from a few trajectories; one trajectory gives a point."""
+    trajectory = np.asarray(trajectory)
+    if len(trajectory) != len(true):
+        raise ValueError(f"{len(trajectory)} trajectory ids for {len(true)} clips")
+    groups = [np.flatnonzero(trajectory == g) for g in np.unique(trajectory)]
+    rng = np.random.default_rng(seed)
+    true, shuffled = np.asarray(true, np.float64), np.asarray(shuffled, np.float64)
+    ratios = np.empty(BOOTSTRAP_RESAMPLES)
+    for b in range(BOOTSTRAP_RESAMPLES):
+        rows = np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))])
+        ratios[b] = _ratio(shuffled[rows].mean(), true[rows].mean())
+    return [float(np.quantile(ratios, 0.025)), float(np.quantile(ratios, 0.975))]
+
+
+def ratio_statistics(
+    true: np.ndarray, shuffled: np.ndarray, seed: int = 0, trajectory: np.ndarray | None = None
+) -> dict[str, Any]:
     """The ratio of mean errors shuffled / true with a 95% bootstrap interval over clips (the
     clips resampled with replacement, :data:`BOOTSTRAP_RESAMPLES` times), the clips whose true
-    actions gave the lower error, and the two-sided exact sign test's p on those pairs."""
+    actions gave the lower error, and the two-sided exact sign test's p on those pairs. Given
+    each clip's ``trajectory``, also ``trajectories`` (how many) and ``trajectory_ci``
+    (:func:`trajectory_interval`)."""
     n = len(true)
     idx = np.random.default_rng(seed).integers(0, n, size=(BOOTSTRAP_RESAMPLES, n))
     boot = _ratio(shuffled[idx].mean(axis=1), true[idx].mean(axis=1))
@@ -174,6 +212,10 @@ def ratio_statistics(true: np.ndarray, shuffled: np.ndarray, seed: int = 0) -> d
         "ties": ties,
         "clips": n,
         "sign_p": min(1.0, 2.0 * tail),
+        **({} if trajectory is None else {
+            "trajectories": int(len(np.unique(trajectory))),
+            "trajectory_ci": trajectory_interval(true, shuffled, trajectory, seed),
+        }),
     }
 
 

@@ -94,6 +94,15 @@ def summarize_planning(rows: Sequence[dict[str, Any]], num_samples: int) -> dict
 # --------------------------------------------------------------------------- verdicts
 
 
+def _over_trajectories(c: dict[str, Any]) -> str:
+    """``, a-b over N trajectories`` where the measure has that interval (reports before it
+    did not)."""
+    if "trajectory_ci" not in c:
+        return ""
+    low, high = c["trajectory_ci"]
+    return f", {low:.3f}-{high:.3f} over {c['trajectories']} trajectories"
+
+
 def conditioning_verdict(result: dict[str, Any]) -> dict[str, str]:
     """``{"status", "text"}`` of the conditioning measure (thresholds: module constants)."""
     if "skipped" in result:
@@ -204,8 +213,9 @@ def format_report(report: dict[str, Any]) -> list[str]:
     else:
         lines.append(
             f"action conditioning: shuffled/true error ratio {c['ratio']:.3f} [95% CI "
-            f"{c['ci'][0]:.3f}-{c['ci'][1]:.3f}], {c['wins']}/{c['clips']} held-out clips better "
-            f"with the true actions -> {v['action_conditioning']['text']}"
+            f"{c['ci'][0]:.3f}-{c['ci'][1]:.3f} over clips{_over_trajectories(c)}], "
+            f"{c['wins']}/{c['clips']} held-out clips better with the true actions -> "
+            f"{v['action_conditioning']['text']}"
         )
     s = p["scripted_plan"]
     if s["instances"]:

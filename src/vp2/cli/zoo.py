@@ -121,8 +121,11 @@ def _conditioning(card: Any) -> str:
     ac = card.action_conditioning
     if ac is None:
         return NOT_MEASURED
+    if "trajectory_interval" in ac:  # the honest interval: clips of one trajectory correlate
+        low, high = ac["trajectory_interval"]
+        return f"{ac['ratio']:.2f}x [{low:.2f}, {high:.2f}] over {ac['trajectories']} trajectories"
     low, high = ac["interval"]
-    return f"{ac['ratio']:.2f}x [{low:.2f}, {high:.2f}]"
+    return f"{ac['ratio']:.2f}x [{low:.2f}, {high:.2f}] over clips"
 
 
 def _control(card: Any) -> str:

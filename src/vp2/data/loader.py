@@ -107,6 +107,11 @@ class ClipDataset(Dataset):
             f = self._files[path] = h5py.File(path, "r")
         return f
 
+    def trajectory(self, i: int) -> int:
+        """The trajectory clip ``i`` is cut from, as its position in :attr:`records` (clips of
+        one trajectory share it; reads no frames)."""
+        return int(self._starts[i][0])
+
     def __getitem__(self, i: int) -> dict[str, Any]:
         rid, start = (int(v) for v in self._starts[i])
         rec = self.records[rid]
