@@ -151,8 +151,9 @@ def test_a_wide_interval_around_1_is_inconclusive_not_blind():
     from vp2.benchmark.diagnose_verdicts import conditioning_verdict
 
     # The pre-check of a model that does use its actions, on 16 clips (64 clips: 1.13 [1.04, 1.23]).
-    wide = conditioning_verdict({"ratio": 1.07, "ci": [0.84, 1.39]})
+    wide = conditioning_verdict({"ratio": 1.07, "ci": [0.84, 1.39], "clips": 16})
     assert wide["status"] == "inconclusive" and "39%" in wide["text"]
+    assert wide["text"].endswith("measure on more clips than these 16 (vp2 diagnose --clips 64)")
     assert conditioning_verdict({"ratio": 1.0, "ci": [0.999, 1.001]})["status"] == "blind"
     assert conditioning_verdict({"ratio": 1.13, "ci": [1.04, 1.23]})["status"] == "uses"
 

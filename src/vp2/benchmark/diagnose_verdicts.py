@@ -111,7 +111,7 @@ def conditioning_verdict(result: dict[str, Any]) -> dict[str, str]:
     if low <= 1.0 <= high and high >= WEAK_RATIO:
         return {"status": "inconclusive", "text": "not settled on these clips: the interval "
                 f"holds 1 but also a {high - 1:.0%} rise of the error; measure on more clips "
-                "(vp2 diagnose --clips 64)"}
+                f"than these {result['clips']} (vp2 diagnose --clips {4 * result['clips']})"}
     if low <= 1.0 <= high:
         return {"status": "blind", "text": "predictions do not depend on the actions: it will "
                 "plan like repeat-last-frame"}
