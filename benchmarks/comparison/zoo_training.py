@@ -198,13 +198,8 @@ def point(s: Settings, family: str, level: float) -> dict[str, Any] | None:
     snapshot.parent.mkdir(parents=True, exist_ok=True)
     export_checkpoint(info["checkpoint"], snapshot)
     spec = f"{info['model']}:{snapshot}"
-    env = load_manifest(s.data).get("config", {}).get("env", "robodesk")
-    device = torch.device(s.device)
-    model = resolve_model(spec, {}, env=env, action_dim=int(env_class(env).action_dim),
-                          device=device)
     measured = time.perf_counter()
-    stats = measure_conditioning(model, s.data, s.clips, s.samples, 0, device)
-    moving = stats.pop("moving")
+    stats, moving = conditioning(s, spec)
     record = {
         "settings": settings,
         "family": family,
@@ -236,6 +231,53 @@ def target_interval(c: dict[str, Any]) -> list[float]:
 
 def _interval(c: dict[str, Any], key: str) -> str:
     return "–" if key not in c else f"[{c[key][0]:.3f}, {c[key][1]:.3f}]"
+
+
+def conditioning(s: Settings, spec: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The conditioning measure of a snapshot (all pixels, changing pixels)."""
+    env = load_manifest(s.data).get("config", {}).get("env", "robodesk")
+    device = torch.device(s.device)
+    model = resolve_model(spec, {}, env=env, action_dim=int(env_class(env).action_dim),
+                          device=device)
+    stats = measure_conditioning(model, s.data, s.clips, s.samples, 0, device)
+    return stats, stats.pop("moving")
+
+
+def remeasure(s: Settings) -> list[dict[str, Any]]:
+    """Measures again the conditioning of the points of ``s.families`` and ``s.levels`` that
+    predate the interval over trajectories (their snapshots, the same clips and seeds: the
+    ratio and the interval over clips come out as before), and rewrites those points; trains
+    nothing. Returns the points rewritten."""
+    done = []
+    for level in s.levels:
+        for family in s.families:
+            path = s.out / "curve" / f"{family}-{_label(level)}.json"
+            if not path.is_file():
+                continue
+            record = json.loads(path.read_text())
+            if "trajectory_ci" in record["conditioning"]:
+                continue
+            measured = time.perf_counter()
+            stats, moving = conditioning(s, record["model"])
+            if abs(stats["ratio"] - record["conditioning"]["ratio"]) > 1e-6 * stats["ratio"]:
+                raise SystemExit(
+                    f"{path}: the snapshot's ratio is now {stats['ratio']:.6f}, was "
+                    f"{record['conditioning']['ratio']:.6f}: not the same measure; not rewritten"
+                )
+            record.update(
+                conditioning=stats, conditioning_moving=moving,
+                above_target=target_interval(stats)[0] > s.target,
+                conditioning_seconds=time.perf_counter() - measured,
+                remeasured=datetime.datetime.now(datetime.timezone.utc).isoformat(
+                    timespec="seconds"),
+            )  # fmt: skip
+            write_json_atomic(path, json_safe(record))
+            low, high = stats["trajectory_ci"]
+            print(f"[{_label(level)}] {family}: ratio {stats['ratio']:.3f}, over "
+                  f"{stats['trajectories']} trajectories [{low:.3f}, {high:.3f}]", flush=True)
+            done.append(record)
+    publish(s)
+    return done
 
 
 def read_points(out: Path) -> list[dict[str, Any]]:
@@ -408,6 +450,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="rewrite curve.md and curve.svg from the points measured; train nothing",
     )
     p.add_argument(
+        "--remeasure",
+        action="store_true",
+        help="measure again the conditioning of the points (of --families, --levels) made "
+        "before the interval over trajectories existed, from their snapshots; train nothing",
+    )
+    p.add_argument(
         "--card",
         metavar="LABEL",
         help="write the zoo card fields of snapshot LABEL (e.g. svg_prime-30min) to "
@@ -485,7 +533,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
     s = settings_from_args(args, argv)
     saved = s.out / "zoo_training.json"
-    if (args.publish_only or args.card) and saved.is_file():
+    if (args.publish_only or args.card or args.remeasure) and saved.is_file():
         # the page and the cards name the command that trained, not this one
         s = dataclasses.replace(s, command=json.loads(saved.read_text())["command"])
     if args.card:
@@ -496,6 +544,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         out.parent.mkdir(parents=True, exist_ok=True)
         write_json_atomic(out, card_fields(json.loads(path.read_text()), s.command))
         print(out)
+        return
+    if args.remeasure:
+        remeasure(s)
         return
     if args.publish_only:
         publish(s)

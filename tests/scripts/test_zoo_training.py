@@ -132,6 +132,21 @@ def test_rounds_train_every_family_in_turn_and_resume(tmp_path):
     table = (out / "curve.md").read_text()
     assert sum(line.startswith(("| svg_prime |", "| fitvid |")) for line in table.splitlines()) == 4
 
+    # A point from before the interval over trajectories: --remeasure measures its snapshot
+    # again (the same ratio), gives it the interval and leaves the other points alone.
+    path = out / "curve" / "fitvid-2min.json"
+    old = json.loads(path.read_text())
+    for key in ("trajectory_ci", "trajectories"):
+        del old["conditioning"][key]
+    path.write_text(json.dumps(old))
+    assert "| fitvid | 2 |" in (_run(data, out, "1", "2", "--publish-only"))
+    remeasured = _run(data, out, "1", "2", "--remeasure")
+    assert remeasured.count("over") == 1 and "[2min] fitvid: ratio " in remeasured
+    new = json.loads(path.read_text())
+    assert new["conditioning"]["ratio"] == pytest.approx(old["conditioning"]["ratio"], rel=1e-9)
+    assert new["conditioning"]["trajectory_ci"] and new["remeasured"]
+    assert json.loads((out / "curve" / "svg_prime-2min.json").read_text()).get("remeasured") is None
+
 
 def test_card_fields_of_a_round_make_a_valid_zoo_card(tmp_path):
     from benchmarks.comparison.zoo_training import card_fields
