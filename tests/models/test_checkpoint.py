@@ -45,6 +45,15 @@ def test_write_then_read_and_load(fitvid_file):
         assert torch.equal(a, b), k
 
 
+def test_the_same_payload_gives_the_same_bytes_under_any_name(fitvid_file, tmp_path):
+    # A zoo entry's SHA-256 names its checkpoint, so re-adding an entry must not change it.
+    payload = read_model_checkpoint(fitvid_file[0])
+    payload.pop("format")
+    a = write_model_checkpoint(tmp_path / "a" / "model.pt", payload)
+    b = write_model_checkpoint(tmp_path / "other.pt", payload)
+    assert a.read_bytes() == b.read_bytes()
+
+
 def test_model_entry_is_name_config_and_weights(fitvid_file):
     _, model = fitvid_file
     entry = model_entry(model)

@@ -113,10 +113,12 @@ def read_model_checkpoint(
 
 def write_model_checkpoint(path: str | os.PathLike[str], payload: dict[str, Any]) -> Path:
     """Writes ``payload`` tagged with :data:`CHECKPOINT_FORMAT`, atomically (temporary file,
-    then ``os.replace``)."""
+    then ``os.replace``). The same payload gives the same bytes: torch names the archive's
+    records after the file it is given, so it is given an open file (records named
+    ``archive/``), not the temporary file's random name."""
     payload = {"format": CHECKPOINT_FORMAT, **payload}
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        torch.save(payload, f)
     return Path(path)
 
 
