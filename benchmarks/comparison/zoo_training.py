@@ -401,9 +401,12 @@ def card_fields(record: dict[str, Any], command: str) -> dict[str, Any]:
             "dataset": f"{data} (held-out clips)",
             "date": date,
             "command": command,
-            "note": "measured by the zoo training after the round (vp2.benchmark."
-            "diagnose_measures, as vp2 diagnose does); MSE per pixel with the true actions "
-            f"{c['mse_true']:.5f}, with another clip's {c['mse_shuffled']:.5f}",
+            "note": "measured by the zoo training after the round (vp2.benchmark.diagnose."
+            "measure_conditioning, as vp2 diagnose does)"
+            + (f"; measured again on {record['remeasured'][:10]} for the interval over "
+               "trajectories (--remeasure: the same ratio)" if record.get("remeasured") else "")
+            + f"; MSE per pixel with the true actions {c['mse_true']:.5f}, with another clip's "
+            f"{c['mse_shuffled']:.5f}",
         },  # fmt: skip
         "rebuild": [*collect, command],
         "notes": f"{family} after {_label(level)} of the zoo training; the snapshot "
