@@ -37,12 +37,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from benchmarks import common
 from vp2.benchmark.diagnose_measures import spearman
 from vp2.benchmark.diagnose_score import FEATURES, FORMAT, features, fit, leave_one_out
 from vp2.benchmark.results import read_trials
-from vp2.utils.io import json_safe, write_json_atomic
+from vp2.utils.io import atomic_path, json_safe, write_json_atomic
 
 ASSET = Path(__file__).resolve().parents[2] / "src" / "vp2" / "assets" / "diagnose_predictor.json"
 #: Fewest models an environment needs for a held-out figure.
@@ -82,6 +83,33 @@ def diagnose_report(entry: Mapping[str, Any], out: Path) -> dict[str, Any]:
     report = diagnose_model(DiagnoseConfig(model=entry["model"], env=entry["env"]))
     write_report(path, report)
     return report
+
+
+#: The fields of a control trial kept in ``results/diagnose/runs`` (results/README.md).
+COMPACT_FIELDS = ("task", "instance", "seed", "success", "first_success_step", "num_steps",
+                  "error", "instance_sha", "num_samples", "model_spec", "finished_at")
+
+
+def compact_run(run_dir: Path, dest: Path) -> int:
+    """Copies a control run into ``dest`` as ``results/diagnose/runs`` keeps one: its
+    ``config.yaml`` and one compact record per trial (:data:`COMPACT_FIELDS`; no actions, scores
+    or GIFs). Returns the trials copied."""
+    trials = read_trials(run_dir)
+    if not trials:
+        raise SystemExit(f"--compact {run_dir}: no trials there")
+    config = (run_dir / "config.yaml").read_text()
+    num_samples = yaml.safe_load(config)["config"]["planner"]["num_samples"]
+    rows = []
+    for t in trials:
+        row = {**t, "model_spec": (t.get("model") or {}).get("spec", t.get("model_spec")),
+               "num_samples": t.get("num_samples", num_samples)}
+        rows.append(json.dumps({k: row.get(k) for k in sorted(COMPACT_FIELDS)}))
+    dest.mkdir(parents=True, exist_ok=True)
+    with atomic_path(dest / "config.yaml") as tmp:
+        Path(tmp).write_text(config)
+    with atomic_path(dest / "trials.jsonl") as tmp:
+        Path(tmp).write_text("\n".join(rows) + "\n")
+    return len(rows)
 
 
 def _signed_spearman(values: Sequence[float | None], success: Sequence[float], sign: float):
@@ -169,9 +197,7 @@ def validation_markdown(
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = common.argument_parser(__spec__.name, __doc__ or "")
-    parser.add_argument(
-        "--models", type=Path, required=True, help="JSON list of models (see above)"
-    )
+    parser.add_argument("--models", type=Path, help="JSON list of models (see above)")
     parser.add_argument("--out", type=Path, default=Path("outputs/diagnose-validation"))
     parser.add_argument(
         "--write-asset",
@@ -179,7 +205,17 @@ def main(argv: Sequence[str] | None = None) -> None:
         help=f"write the fitted predictor to {ASSET.relative_to(ASSET.parents[3])}",
     )
     parser.add_argument("--asset", type=Path, default=ASSET, help="where --write-asset writes")
+    parser.add_argument(
+        "--compact", nargs=2, type=Path, metavar=("RUN_DIR", "DEST"),
+        help="copy a control run into DEST as results/diagnose/runs keeps one (config and "
+        "compact trial records) and stop",
+    )
     args = parser.parse_args(argv)
+    if args.compact:
+        print(f"{compact_run(*args.compact)} trials -> {args.compact[1]}")
+        return
+    if args.models is None:
+        parser.error("--models is required (or --compact RUN_DIR DEST)")
     entries = json.loads(args.models.read_text())["models"]
     labels = [e["label"] for e in entries]
     if len(set(labels)) != len(labels):

@@ -201,3 +201,22 @@ def test_the_shipped_predictor_rebuilds_from_its_committed_evidence(tmp_path, mo
     assert rebuilt["validation"]["held_out_spearman"] == pytest.approx(
         shipped["validation"]["held_out_spearman"])
     assert rebuilt["models_fitted"] == shipped["models_fitted"] == 7
+
+
+def test_a_control_run_is_copied_compactly_and_reads_as_the_same_success(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text("config:\n  planner:\n    num_samples: 50\n")
+    full = {"task": "robodesk/push_red", "instance": 1, "seed": 2, "success": True,
+            "first_success_step": 8, "num_steps": 15, "error": None, "instance_sha": "2c9d",
+            "finished_at": "2026-11-26T23:49:12+00:00", "actions": [[0.1] * 5] * 15,
+            "model": {"spec": "zoo:fitvid-robodesk-120min", "name": "fitvid"}}  # fmt: skip
+    (run / "trials.jsonl").write_text(json.dumps(full) + "\n" + json.dumps(
+        {**full, "instance": 2, "success": False, "first_success_step": None}) + "\n")
+    dest = tmp_path / "results" / "fitvid-120min"
+    assert dv.compact_run(run, dest) == 2
+    first = json.loads((dest / "trials.jsonl").read_text().splitlines()[0])
+    assert first == {k: full[k] for k in dv.COMPACT_FIELDS if k in full} | {
+        "model_spec": "zoo:fitvid-robodesk-120min", "num_samples": 50}
+    assert (dest / "config.yaml").read_text() == (run / "config.yaml").read_text()
+    assert dv.control_success([str(dest)], "robodesk") == dv.control_success([str(run)], "robodesk")
