@@ -33,7 +33,7 @@ def test_list_shows_the_shipped_model(capsys, monkeypatch):
                             "conditioning", "metrics", "control"]
     assert row.split() == [SHIPPED, "svg_prime", "m0.25k0.25", "robodesk", "1.65", "M",
                            "1.60x", "[1.49,", "1.72]", "over", "clips", "lpips", "ssim", "psnr", "mse", "robodesk",
-                           "3/7", "(43%)"]
+                           "30/63", "(48%)"]
     assert "!" not in out  # every entry's checkpoint matches its card
     # The zoo training's SVG' after 30 core-minutes, with its card from the files that measured it.
     (row,) = [line for line in out.splitlines() if line.startswith("svg_prime-robodesk-30min ")]
@@ -66,7 +66,8 @@ def test_show_prints_the_whole_card(capsys):
         if field not in ("name", "family", "checkpoint", "sha256"):
             assert f"\n{field}:" in out, field
     assert "  fvd: not measured" in out and "  lpips: 0.0463" in out and "  mse: 0.0054" in out
-    assert "--clips 128 --samples 3" in out and "vp2 main --out outputs/main-v3" in out
+    assert "--clips 128 --samples 3" in out
+    assert "--num-instances 3 --seeds 0 1 2 --num-samples 50 --out outputs/comparison-zoo" in out
     code, out, _ = _vp2(capsys, "zoo", "show", SHIPPED, "--json")
     assert json.loads(out) == json.loads((get_card(SHIPPED).directory / "card.json").read_text())
 
