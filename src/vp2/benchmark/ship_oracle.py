@@ -112,8 +112,10 @@ def compact_record(record: Mapping[str, Any], num_samples: int | None) -> dict[s
     return out
 
 
-def run_command(settings: Mapping[str, Any], run_dir: PathLike) -> str:
-    """The ``vp2 run`` command line of a run's settings (``RunDir.settings``, flat form)."""
+def run_command(settings: Mapping[str, Any], run_dir: PathLike, full_out: bool = False) -> str:
+    """The ``vp2 run`` command line of a run's settings (``RunDir.settings``, flat form). Its
+    ``--out`` is the run directory's name (a table's runs sit side by side under
+    ``results/``), or with ``full_out`` the run's own ``out`` setting (where it ran)."""
     parts = ["vp2", "run", "--model", str(settings.get("model"))]
     for key, value in sorted((settings.get("model_args") or {}).items()):
         parts += ["--model-arg", f"{key}={value}"]
@@ -133,7 +135,8 @@ def run_command(settings: Mapping[str, Any], run_dir: PathLike) -> str:
             parts += [flag, str(settings[key])]
     if settings.get("stop_on_success"):
         parts.append("--stop-on-success")
-    return shlex.join([*parts, "--out", Path(run_dir).name])
+    out = str(settings.get("out") or run_dir) if full_out else Path(run_dir).name
+    return shlex.join([*parts, "--out", out])
 
 
 def default_table_name(samples: Mapping[str, int | None]) -> str:

@@ -41,7 +41,7 @@ def control_section(run_dirs: Sequence[str | os.PathLike[str]], env: str) -> dic
     commands, samples, steps, suites = [], set(), set(), set()
     for run_dir in map(Path, run_dirs):
         settings = _run_settings(run_dir)
-        commands.append(run_command(settings, run_dir))
+        commands.append(run_command(settings, run_dir, full_out=True))
         suites.add(settings.get("suite") or SUITE_FORMAT)
         for record in read_trials(run_dir):
             if str(record.get("task", "")).startswith(f"{env}/") and is_ok(record):
