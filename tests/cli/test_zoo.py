@@ -32,7 +32,7 @@ def test_list_shows_the_shipped_model(capsys, monkeypatch):
     assert head.split() == ["name", "family", "preset", "env", "params", "action",
                             "conditioning", "metrics", "control"]
     assert row.split() == [SHIPPED, "svg_prime", "m0.25k0.25", "robodesk", "1.65", "M",
-                           "1.60x", "[1.49,", "1.72]", "over", "clips", "lpips", "ssim", "psnr", "mse", "robodesk",
+                           "1.60x", "[1.49,", "1.72]", "over", "clips", "fvd", "lpips", "ssim", "psnr", "mse", "robodesk",
                            "30/63", "(48%)"]
     assert "!" not in out  # every entry's checkpoint matches its card
     # The zoo training's SVG' after 30 core-minutes, with its card from the files that measured it.
@@ -65,7 +65,7 @@ def test_show_prints_the_whole_card(capsys):
     for field in FIELDS:
         if field not in ("name", "family", "checkpoint", "sha256"):
             assert f"\n{field}:" in out, field
-    assert "  fvd: not measured" in out and "  lpips: 0.0463" in out and "  mse: 0.0054" in out
+    assert "  fvd: 442.01548" in out and "  lpips: 0.0463" in out and "  mse: 0.00538" in out
     assert "--clips 128 --samples 3" in out
     assert "--num-instances 3 --seeds 0 1 2 --num-samples 50 --out outputs/comparison-zoo" in out
     code, out, _ = _vp2(capsys, "zoo", "show", SHIPPED, "--json")
