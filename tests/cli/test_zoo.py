@@ -218,3 +218,21 @@ def test_add_fills_control_and_metrics_from_their_files(capsys, tmp_path):
     code, _, err = _vp2(capsys, "zoo", "add", str(tmp_path / "m.pt"), "--name", "u", "--metrics",
                         str(metrics), "--card-from", str(given), "--zoo", str(zoo))
     assert code == 2 and "--metrics and --card-from both give the card's metrics" in err
+
+
+def test_a_reader_that_goes_away_ends_the_listing_quietly():
+    # `vp2 zoo list | head -1`, deterministically: the pipe's reading end is closed before the
+    # listing is written, so the first write fails (EPIPE).
+    import os
+    import subprocess
+    import sys
+
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        proc = subprocess.run([sys.executable, "-c", "from vp2.cli import main; "
+                               "raise SystemExit(main())", "zoo", "list"], stdout=write,
+                              stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write)
+    assert proc.returncode == 141 and "Traceback" not in proc.stderr, proc.stderr

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from collections.abc import Sequence
 
@@ -58,6 +59,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.getLogger("OpenGL").setLevel(logging.WARNING)
     try:
         return args.fn(args)
+    except BrokenPipeError:
+        # The reader of the output went away (``vp2 zoo list | head``): stop quietly, as a
+        # shell tool does, with nothing left to flush at exit (SIGPIPE's exit status).
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except (ValueError, FileExistsError, FileNotFoundError, DatasetError) as exc:
         print(f"vp2 {args.command}: error: {exc}", file=sys.stderr)
         return 2
