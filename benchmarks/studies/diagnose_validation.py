@@ -19,7 +19,9 @@ directories in ``control`` on the model's environment) and the perceptual metric
 FVD of ``vp2 metrics``, where given). Then, per environment with at least 3 models:
 
 * the **held-out predictions**: each model's score from the predictor
-  (:mod:`vp2.benchmark.diagnose_score`) fitted on the *other* models;
+  (:mod:`vp2.benchmark.diagnose_score`) fitted on the *other* models, its ridge penalty chosen
+  by those models alone (nested leave-one-out, :func:`~vp2.benchmark.diagnose_score.choose_ridge`);
+  beside it the same with the penalty fixed at 1;
 * **Spearman** of the held-out predictions with measured success, beside the Spearman of SSIM,
   −LPIPS and −FVD with success on the same models (signed so that +1 means "the better metric
   goes with more success");
@@ -41,7 +43,15 @@ import yaml
 
 from benchmarks import common
 from vp2.benchmark.diagnose_measures import spearman
-from vp2.benchmark.diagnose_score import FEATURES, FORMAT, features, fit, leave_one_out
+from vp2.benchmark.diagnose_score import (
+    FEATURES,
+    FORMAT,
+    RIDGE,
+    choose_ridge,
+    features,
+    fit,
+    leave_one_out,
+)
 from vp2.benchmark.results import read_trials
 from vp2.utils.io import atomic_path, json_safe, write_json_atomic
 
@@ -136,16 +146,19 @@ def validate(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         feats = [m["features"] for m in models]
         success = [m["success"] for m in models]
         trials = [m["trials"] for m in models]
-        held_out = leave_one_out(feats, success, trials)
+        held_out = leave_one_out(feats, success, trials, ridge="auto")  # nested choice
         rho, _ = _signed_spearman(held_out, success, 1.0)
-        table = {"predicted (held out)": (rho, len(models))}
+        fixed = leave_one_out(feats, success, trials, ridge=RIDGE)
+        table = {"predicted (held out)": (rho, len(models)),
+                 f"predicted (held out), ridge fixed at {RIDGE:g}":
+                     _signed_spearman(fixed, success, 1.0)}  # fmt: skip
         for key, sign in (("ssim", 1.0), ("lpips", -1.0), ("fvd", -1.0)):
             table[key] = _signed_spearman([m[key] for m in models], success, sign)
         for name in FEATURES:  # each measure alone, as it is: nothing fitted
             table[f"{name} alone"] = _signed_spearman(
                 [m["features"][name] for m in models], success, 1.0
             )
-        predictor = fit(feats, success, trials)
+        predictor = fit(feats, success, trials, choose_ridge(feats, success, trials))
         predictor.update(
             models_fitted=len(models),
             validation={"held_out_spearman": rho, "models": len(models)},

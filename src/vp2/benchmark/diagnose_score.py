@@ -5,7 +5,9 @@ module turns them into **features** (:func:`features`), fits a **predictor** of 
 success from models whose control runs were measured (:func:`fit`: an L2-regularised logistic
 regression of the success fraction on the standardised features, weighted by the trials behind
 each fraction), applies it (:func:`predict`), and validates it **leave-one-model-out**
-(:func:`leave_one_out`: each model's score comes from a predictor fitted without it).
+(:func:`leave_one_out`: each model's score comes from a predictor fitted without it). The
+ridge penalty is chosen from :data:`RIDGE_GRID` by the leave-one-out deviance of the models a
+predictor is fitted on (:func:`choose_ridge`; nested inside the validation's leave-one-out).
 
 The fitted constants ship as ``vp2/assets/diagnose_predictor.json`` (written by
 ``benchmarks.studies.diagnose_validation``, which also measures the held-out Spearman); without
@@ -38,8 +40,10 @@ FEATURES: tuple[str, ...] = (
 #: Why there is no score when vp2 ships no predictor.
 NO_PREDICTOR = ("no predictor asset (vp2/assets/diagnose_predictor.json); fit one with "
                 "python -m benchmarks.studies.diagnose_validation --write-asset")
-#: Ridge penalty on the standardised weights (not on the intercept).
+#: Ridge penalty on the standardised weights (not on the intercept) where none is chosen.
 RIDGE = 1.0
+#: The penalties :func:`choose_ridge` chooses from.
+RIDGE_GRID: tuple[float, ...] = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
 
 
 def _num(value: Any, default: float = 0.0) -> float:
@@ -152,16 +156,42 @@ def leave_one_out(
     rows: Sequence[Mapping[str, float]],
     success: Sequence[float],
     trials: Sequence[int],
-    ridge: float = RIDGE,
+    ridge: float | str = RIDGE,
 ) -> list[float]:
-    """Each model's predicted score from a predictor fitted on all the other models."""
+    """Each model's predicted score from a predictor fitted on all the other models. With
+    ``ridge="auto"`` each fit's penalty is chosen by :func:`choose_ridge` on its own models
+    only (nested: the held-out model does not choose it)."""
     out = []
     for i in range(len(rows)):
         keep = [j for j in range(len(rows)) if j != i]
-        predictor = fit([rows[j] for j in keep], [success[j] for j in keep],
-                        [trials[j] for j in keep], ridge)  # fmt: skip
-        out.append(predict(predictor, rows[i]))
+        r, y, n = [rows[j] for j in keep], [success[j] for j in keep], [trials[j] for j in keep]
+        penalty = choose_ridge(r, y, n) if ridge == "auto" else float(ridge)
+        out.append(predict(fit(r, y, n, penalty), rows[i]))
     return out
+
+
+def deviance(predicted: Sequence[float], success: Sequence[float], trials: Sequence[int]) -> float:
+    """The binomial deviance's likelihood part, ``-sum n (y log p + (1 - y) log (1 - p))``: how
+    badly predicted fractions explain measured ones, each weighted by its trials."""
+    p = np.clip(np.asarray(predicted, np.float64), 1e-9, 1 - 1e-9)
+    y, n = np.asarray(success, np.float64), np.asarray(trials, np.float64)
+    return float(-np.sum(n * (y * np.log(p) + (1 - y) * np.log(1 - p))))
+
+
+def choose_ridge(
+    rows: Sequence[Mapping[str, float]],
+    success: Sequence[float],
+    trials: Sequence[int],
+    grid: Sequence[float] = RIDGE_GRID,
+) -> float:
+    """The penalty of ``grid`` whose leave-one-out predictions have the lowest
+    :func:`deviance` on these models (ties: the larger penalty); :data:`RIDGE` for fewer than
+    3 models."""
+    if len(rows) < 3:
+        return RIDGE
+    scores = [(deviance(leave_one_out(rows, success, trials, r), success, trials), -r)
+              for r in grid]  # fmt: skip
+    return -min(scores)[1]
 
 
 def load_predictor(path: str | Path | None = None) -> dict[str, Any] | None:
