@@ -236,3 +236,38 @@ def test_a_reader_that_goes_away_ends_the_listing_quietly():
     finally:
         os.close(write)
     assert proc.returncode == 141 and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_fill_rewrites_the_measured_sections_and_leaves_the_checkpoint(capsys, tmp_path):
+    from tests.report.test_cards import _trial, make_run
+
+    zoo = tmp_path / "zoo"
+    code, _, err = _vp2(capsys, "zoo", "add", str(make_checkpoint(tmp_path / "m.pt")), "--name",
+                        "t", "--zoo", str(zoo))
+    assert code == 0, err
+    before = (zoo / "t" / CHECKPOINT_FILE).read_bytes()
+    desk = make_run(tmp_path / "desk", [_trial("robodesk/push_red", 0, 0, True),
+                                        _trial("robodesk/push_red", 1, 0, False)])
+    table = make_run(tmp_path / "table", [_trial("tabletop/push_sphere", 0, 0, False)],
+                     tasks=("tabletop",))
+    metrics = tmp_path / "metrics.json"
+    metrics.write_text(json.dumps({"metrics": {"fvd": 321.0, "ssim": 0.8}, "model": {"spec": "m"},
+                                   "dataset": "d", "num_clips": 8, "seed": 0,
+                                   "settings": {"fvd": True, "lpips_nets": []}}))
+    code, out, err = _vp2(capsys, "zoo", "fill", "t", "--control", str(desk), "--metrics",
+                          str(metrics), "--note", "the comparison's run", "--zoo", str(zoo))
+    assert code == 0, err
+    assert "t: control on robodesk 1/2\n" in out and "t: metrics fvd 321, ssim 0.8\n" in out
+    # A later run of the other environment adds its row and keeps the first.
+    code, _, err = _vp2(capsys, "zoo", "fill", "t", "--control", str(table), "--zoo", str(zoo))
+    assert code == 0, err
+    card = get_card("t", zoo)
+    assert card.control["robodesk"]["successes"] == 1
+    assert card.control["robodesk"]["note"] == "the comparison's run"
+    assert card.control["tabletop"]["trials"] == 1 and card.metrics["fvd"] == 321.0
+    assert (zoo / "t" / CHECKPOINT_FILE).read_bytes() == before  # the checkpoint untouched
+    code, _, err = _vp2(capsys, "zoo", "fill", "t", "--zoo", str(zoo))
+    assert code == 2 and "give --control RUN_DIR... and/or --metrics FILE" in err
+    (zoo / "t" / CHECKPOINT_FILE).write_bytes(before + b"x")  # changed after the card
+    code, _, err = _vp2(capsys, "zoo", "fill", "t", "--metrics", str(metrics), "--zoo", str(zoo))
+    assert code == 2 and "does not match its card" in err

@@ -1,4 +1,4 @@
-"""``vp2 zoo list|show|add``: the model zoo, trained checkpoints by name (docs/models.md)."""
+"""``vp2 zoo list|show|add|fill``: the model zoo, trained checkpoints by name (docs/models.md)."""
 
 from __future__ import annotations
 
@@ -41,16 +41,26 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     add.add_argument("--card-from", type=Path, metavar="JSON",
                      help="card fields to add: a JSON mapping (e.g. a card of `vp2 zoo show "
                      "NAME --json` with the measured fields filled)")
-    add.add_argument("--control", nargs="+", type=Path, metavar="RUN_DIR",
-                     help="fill the card's control from these `vp2 run` directories (one row "
-                     "per environment: successes over their finished trials, the protocol, the "
-                     "commands)")
-    add.add_argument("--metrics", type=Path, metavar="FILE",
-                     help="fill the card's metrics from this `vp2 metrics` result")
+    fill = sub.add_parser(
+        "fill",
+        help="fill an entry's control or metrics from the runs that measured them",
+        description="Rewrite the control and/or metrics of an entry's card from `vp2 run` "
+        "directories and a `vp2 metrics` result; the checkpoint is not touched (and must still "
+        "match the card). A control row replaces the card's row of its environment.",
+    )
+    fill.add_argument("name", help="the entry's name")
+    for command in (add, fill):
+        command.add_argument("--control", nargs="+", type=Path, metavar="RUN_DIR",
+                             help="fill the card's control from these `vp2 run` directories "
+                             "(one row per environment: successes over their finished trials, "
+                             "the protocol, the commands)")
+        command.add_argument("--metrics", type=Path, metavar="FILE",
+                             help="fill the card's metrics from this `vp2 metrics` result")
+    fill.add_argument("--note", help="a note for the rows filled (e.g. which comparison ran them)")
     add.add_argument("--float32", action="store_true",
                      help="keep float32 weights (default: float16, half the size)")
     add.add_argument("--force", action="store_true", help="replace an entry of that name")
-    for command in (listing, show, add):
+    for command in (listing, show, add, fill):
         command.add_argument("--zoo", type=Path, default=None, metavar="DIR", help=zoo_help)
     return p
 
@@ -63,9 +73,31 @@ def run_from_args(args: argparse.Namespace) -> int:
 
         card = get_card(args.name, args.zoo, verify=False)
         print(json.dumps(card.to_json(), indent=2) if args.json else show_card(card))
+    elif args.zoo_command == "fill":
+        _fill(args)
     else:
         _add(args)
     return 0
+
+
+def _fill(args: argparse.Namespace) -> None:
+    from vp2.models.zoo import fill_card
+
+    if args.control is None and args.metrics is None:
+        raise ValueError("vp2 zoo fill: give --control RUN_DIR... and/or --metrics FILE")
+    sections = _measured_from_files({}, args.control, args.metrics)
+    if args.note:
+        for row in (sections.get("control") or {}).values():
+            row["note"] = args.note
+        if "metrics" in sections:
+            sections["metrics"]["note"] = f"{sections['metrics']['note']}; {args.note}"
+    card = fill_card(args.name, sections, args.zoo)
+    for env, row in (sections.get("control") or {}).items():
+        print(f"{card.name}: control on {env} {row['successes']}/{row['trials']}")
+    if "metrics" in sections:
+        m = card.metrics
+        shown = ", ".join(f"{k} {m[k]:.4g}" for k in ("fvd", "lpips", "ssim") if m.get(k) is not None)
+        print(f"{card.name}: metrics {shown or 'none measured'}")
 
 
 def _add(args: argparse.Namespace) -> None:

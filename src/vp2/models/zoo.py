@@ -438,6 +438,34 @@ def _merge(derived: dict[str, Any], given: Mapping[str, Any], where: str) -> dic
     return card
 
 
+def fill_card(
+    name: str,
+    sections: Mapping[str, Any],
+    directory: str | os.PathLike[str] | None = None,
+) -> ZooCard:
+    """Replaces measured sections of entry ``name``'s card and rewrites it, the checkpoint
+    untouched (it must still match the card). ``sections`` holds ``metrics`` and/or
+    ``control``; a ``control`` row replaces the row of its environment and keeps the others.
+
+    Raises:
+        ZooError: no such entry, a checkpoint that no longer matches, or sections that are not
+            :data:`MEASURED` fields or fail the card's checks.
+    """
+    unknown = sorted(set(sections) - set(MEASURED))
+    if unknown:
+        raise ZooError(f"can only fill the measured fields {', '.join(MEASURED)}, not "
+                       f"{', '.join(unknown)}")
+    card = get_card(name, directory)  # verified: the figures will be of this checkpoint
+    data = card.to_json()
+    for key, value in json_safe(dict(sections)).items():
+        data[key] = {**(data.get(key) or {}), **value} if key == "control" else value
+    where = str(card.directory / CARD_FILE)
+    filled = ZooCard.from_json(data, card.directory, where)
+    with atomic_path(card.directory / CARD_FILE) as tmp:
+        tmp.write_text(json.dumps(filled.to_json(), indent=2) + "\n")
+    return filled
+
+
 def add_to_zoo(
     source: str | os.PathLike[str],
     name: str,
