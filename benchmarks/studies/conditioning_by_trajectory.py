@@ -26,10 +26,9 @@ from benchmarks import common
 from vp2.benchmark.diagnose_measures import (
     conditioning_errors,
     ratio_statistics,
-    select_clip_indices,
 )
 from vp2.benchmark.model_spec import resolve_model
-from vp2.data.loader import ClipDataset
+from vp2.data.loader import ClipDataset, select_clips
 from vp2.data.storage import load_manifest
 
 CONTEXT, FUTURE = 2, 10
@@ -41,7 +40,7 @@ def valid_clips(data: str, clips: int | None) -> tuple[torch.Tensor, torch.Tenso
     dataset = ClipDataset(data, split="valid", context=CONTEXT, future=FUTURE)
     try:
         indices = (range(len(dataset)) if clips is None
-                   else select_clip_indices(len(dataset), clips, seed=0))
+                   else select_clips(len(dataset), clips, seed=0))
         items = [dataset[i] for i in indices]
         trajectory = np.array([dataset.trajectory(i) for i in indices])
     finally:

@@ -17,7 +17,7 @@ import torch
 from tests.models.synthetic import write_moving_square_dataset
 from tests.training.test_perceptual import _write_weights
 from vp2.cli.metrics import configure_parser, default_out, model_slug, run_from_args
-from vp2.data.loader import ClipDataset
+from vp2.data.loader import ClipDataset, select_clips
 from vp2.metrics import (
     I3D_FILE,
     LPIPS,
@@ -31,7 +31,7 @@ from vp2.metrics import (
     ssim,
     write_metrics,
 )
-from vp2.metrics.evaluate import PSNR_CAP, select_clips
+from vp2.metrics.evaluate import PSNR_CAP
 from vp2.metrics.i3d import save_variables
 
 SPEC = "repeat_last_frame"

@@ -38,7 +38,7 @@ import torch
 import vp2
 from vp2 import spec
 from vp2.benchmark.trial import goal_image_at, trial_seed
-from vp2.data.loader import ClipDataset
+from vp2.data.loader import ClipDataset, select_clips
 from vp2.data.suite import TaskInstance
 from vp2.models.contract import predict_in_chunks
 from vp2.planning.agent import PlanningAgent, frames_to_tensor
@@ -68,14 +68,6 @@ SHIPPED_ORACLE_SCORES = Path(__file__).resolve().parents[1] / "assets" / "diagno
 # --------------------------------------------------------------------------- held-out clips
 
 
-def select_clip_indices(num_available: int, num_clips: int, seed: int) -> list[int]:
-    """``min(num_clips, num_available)`` distinct clip indices drawn with ``seed``, increasing:
-    the rule of ``vp2 metrics`` (the same seed picks the same clips)."""
-    gen = torch.Generator().manual_seed(seed)
-    chosen = torch.randperm(num_available, generator=gen)[: min(num_clips, num_available)]
-    return sorted(chosen.tolist())
-
-
 def held_out_clips(
     data: str | Path, num_clips: int, seed: int, context: int, future: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -83,7 +75,7 @@ def held_out_clips(
     W)`` in [0, 1] and ``actions (N, context + future - 1, A)`` float32."""
     dataset = ClipDataset(data, split="valid", context=context, future=future)
     try:
-        items = [dataset[i] for i in select_clip_indices(len(dataset), num_clips, seed)]
+        items = [dataset[i] for i in select_clips(len(dataset), num_clips, seed)]
     finally:
         dataset.close()
     frames = torch.stack([it["frames"] for it in items])
@@ -97,7 +89,7 @@ def held_out_trajectories(
     ``(N,)`` integers (equal for clips of one trajectory); reads no frames."""
     dataset = ClipDataset(data, split="valid", context=context, future=future)
     try:
-        chosen = select_clip_indices(len(dataset), num_clips, seed)
+        chosen = select_clips(len(dataset), num_clips, seed)
         return np.array([dataset.trajectory(i) for i in chosen], dtype=np.int64)
     finally:
         dataset.close()

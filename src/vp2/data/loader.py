@@ -134,3 +134,15 @@ class ClipDataset(Dataset):
         for f in self._files.values():
             f.close()
         self._files.clear()
+
+
+def select_clips(num_available: int, num_clips: int, seed: int) -> list[int]:
+    """The held-out clips a model is measured on: ``min(num_clips, num_available)`` distinct
+    indices of a :class:`ClipDataset` drawn with ``seed``, in increasing order. The same seed
+    picks the same clips for every model and every measure (``vp2 metrics``, ``vp2
+    diagnose``'s action conditioning)."""
+    if num_clips < 1:
+        raise ValueError(f"num_clips must be >= 1, got {num_clips}")
+    gen = torch.Generator().manual_seed(seed)
+    chosen = torch.randperm(num_available, generator=gen)[: min(num_clips, num_available)]
+    return sorted(chosen.tolist())

@@ -32,7 +32,7 @@ import torch
 from torch.utils.data import DataLoader, Subset
 from tqdm.auto import tqdm
 
-from vp2.data.loader import ClipDataset
+from vp2.data.loader import ClipDataset, select_clips
 from vp2.data.storage import load_manifest
 from vp2.metrics.fvd import FrechetVideoDistance, fvd_from_features
 from vp2.metrics.image import mse, psnr, ssim
@@ -98,16 +98,6 @@ def _build_model(
             f"future frames, the clips {dataset.context} + {dataset.future}"
         )
     return model, identity
-
-
-def select_clips(num_available: int, num_clips: int, seed: int) -> list[int]:
-    """The clip indices evaluated: ``min(num_clips, num_available)`` distinct indices drawn
-    with ``seed`` (the same for every model), in increasing order."""
-    if num_clips < 1:
-        raise ValueError(f"num_clips must be >= 1, got {num_clips}")
-    gen = torch.Generator().manual_seed(seed)
-    chosen = torch.randperm(num_available, generator=gen)[: min(num_clips, num_available)]
-    return sorted(chosen.tolist())
 
 
 def evaluate_model(
@@ -318,6 +308,5 @@ __all__ = [
     "METRICS_FILE",
     "PSNR_CAP",
     "evaluate_model",
-    "select_clips",
     "write_metrics",
 ]
