@@ -29,8 +29,9 @@ from vp2.models import CheckpointSpec, build_model, model_entry, write_model_che
 from vp2.models.baselines import RepeatLastFrame
 from vp2.models.contract import CheckedPredictor, unwrap
 from vp2.models.simulator import SimulatorModel
-from vp2.models.zoo import CHECKPOINT_FILE, add_to_zoo, get_card
+from vp2.models.zoo import CHECKPOINT_FILE, get_card
 from vp2.models.zoo import ZOO_PREFIX as ZOO_PREFIX_OF_THE_ZOO
+from vp2.models.zoo_entries import add_to_zoo
 
 
 def test_module_factory_with_args_and_context():

@@ -19,14 +19,13 @@ from vp2.models.zoo import (
     FIELDS,
     ZooCard,
     ZooError,
-    add_to_zoo,
-    describe_checkpoint,
     get_card,
     list_zoo,
     read_card,
     sha256_of,
     zoo_dir,
 )
+from vp2.models.zoo_entries import add_to_zoo, describe_checkpoint
 from vp2.training.config import TrainConfig
 
 REPO = Path(__file__).resolve().parents[2]

@@ -152,7 +152,7 @@ def test_card_fields_of_a_round_make_a_valid_zoo_card(tmp_path):
     from benchmarks.comparison.zoo_training import card_fields
 
     from tests.models.test_zoo import make_checkpoint
-    from vp2.models.zoo import add_to_zoo
+    from vp2.models.zoo_entries import add_to_zoo
 
     stats = {"ratio": 1.3204, "ci": [1.1985, 1.4459], "clips": 64, "wins": 58, "ties": 0,
              "sign_p": 9.03e-12, "mse_true": 0.006424, "mse_shuffled": 0.008482,

@@ -81,7 +81,7 @@ def run_from_args(args: argparse.Namespace) -> int:
 
 
 def _fill(args: argparse.Namespace) -> None:
-    from vp2.models.zoo import fill_card
+    from vp2.models.zoo_entries import fill_card
 
     if args.control is None and args.metrics is None:
         raise ValueError("vp2 zoo fill: give --control RUN_DIR... and/or --metrics FILE")
@@ -101,7 +101,7 @@ def _fill(args: argparse.Namespace) -> None:
 
 
 def _add(args: argparse.Namespace) -> None:
-    from vp2.models.zoo import add_to_zoo
+    from vp2.models.zoo_entries import add_to_zoo
     from vp2.training.export import export_checkpoint
 
     given: Any = None
