@@ -67,6 +67,11 @@ Layout of ``--out``::
     report.html, report.png      `vp2 report` of every run, and its screenshot
     results.md                   the page
 
+``--records DIR`` keeps the small outputs of each part (compact trial records, metrics,
+diagnoses, conditioning) in ``DIR/<env>/`` (e.g. ``results/comparison``, committed) and
+restores from there what ``--out`` lacks (:mod:`benchmarks.comparison.records`): a machine
+that lost ``--out`` rebuilds the page and resumes the runs after their last recorded trial.
+
 Every output is written atomically and records the settings it was made with; an invocation
 with other settings for an existing output stops with a message (use another ``--out``)
 rather than mixing results. Runs and metrics name a family's final checkpoint *file*, so a
@@ -95,6 +100,7 @@ import torch
 
 import vp2
 from benchmarks import common
+from benchmarks.comparison import records as evidence
 from benchmarks.comparison.model_comparison_results import (
     combined_markdown,
     relative_link,
@@ -201,6 +207,7 @@ class Settings:
     skip_train: bool
     smoke: bool
     command: str
+    records: Path | None = None  # this part's committed evidence (benchmarks.comparison.records)
 
     def seeds_of(self, name: str) -> tuple[int, ...]:
         """The control-run seeds of run ``name``: ``--seeds``, unless ``--seeds-for`` gives
@@ -595,6 +602,10 @@ def run_comparison(s: Settings, after_publish: Callable[[], object] | None = Non
     published = after_publish or (lambda: None)
     s.out.mkdir(parents=True, exist_ok=True)
     stage_log = StageLog(s.out)
+    if s.records is not None:
+        restored = evidence.restore(s.records, s.out)
+        if any(restored.values()):
+            stage_log.add("records", str(s.records), "restored", **restored)
     # What results.md reads besides the stages' files: the settings, and what was compared.
     record = {
         **dataclasses.asdict(s),
@@ -626,6 +637,7 @@ def run_comparison(s: Settings, after_publish: Callable[[], object] | None = Non
         name: metrics_stage(s, name, spec, stage_log, fvd_metric)
         for name, spec in predictors.items()
     }
+    save_records(s)
     # The baselines first (minutes), then the extra models, then the families in the order
     # given: the page is rewritten after every run that planned trials, so a build cut short
     # (a session's end) still publishes what it finished, and says what is pending.
@@ -634,6 +646,7 @@ def run_comparison(s: Settings, after_publish: Callable[[], object] | None = Non
     for name in order:
         result = runs_stage(s, name, specs.get(name), stage_log)
         run_dirs[name] = result.run_dir
+        save_records(s)
         pending = [n for n in order if n not in run_dirs]
         if pending and result.num_run:
             publish(s, run_dirs, metrics_files, stage_log, pending)
@@ -641,6 +654,12 @@ def run_comparison(s: Settings, after_publish: Callable[[], object] | None = Non
     page = publish(s, run_dirs, metrics_files, stage_log, [])
     published()
     return page
+
+
+def save_records(s: Settings) -> None:
+    """Copies what the part measured so far into its records (``--records``), if any."""
+    if s.records is not None:
+        evidence.save(s.out, s.records)
 
 
 def publish_found(s: Settings) -> Path:
@@ -651,6 +670,8 @@ def publish_found(s: Settings) -> Path:
     recorded = s.out / "comparison.json"
     if not recorded.is_file():
         raise ValueError(f"--publish-only: {recorded} does not exist; run the comparison first")
+    if s.records is not None:
+        evidence.restore(s.records, s.out)
     build = json.loads(recorded.read_text())
     s = dataclasses.replace(
         s,
@@ -813,6 +834,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="control-run seeds of one run, a subset of --seeds, comma-separated (e.g. "
         "mcvd=0: a slow model planned with one seed); the page says so; repeatable",
     )
+    p.add_argument(
+        "--records",
+        type=Path,
+        help="keep the comparison's evidence here (e.g. results/comparison, committed): "
+        "compact trial records, metrics, diagnoses, one folder per environment; a build "
+        "restores from it what --out lacks (benchmarks/comparison/records.py)",
+    )
     p.add_argument("--smoke", action="store_true", help="a tiny configuration (tests)")
     return p.parse_args(argv)
 
@@ -925,6 +953,7 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
         skip_train=args.skip_train,
         smoke=args.smoke,
         command=command,
+        records=None if args.records is None else args.records / dataset_env(args.data),
     )
 
 

@@ -13,6 +13,8 @@
        "metrics": "outputs/comparison/metrics/shipped_svg_prime/metrics.json"},
       ...]}
 
+(``"report": PATH`` names a diagnose report made elsewhere, e.g. by the model comparison.)
+
 For each model it runs ``vp2 diagnose`` (default settings; the report is kept under
 ``<out>/reports/<label>.json`` and reused), reads the control success (every trial of the run
 directories in ``control`` on the model's environment) and the perceptual metrics (SSIM, LPIPS,
@@ -84,7 +86,11 @@ def perceptual(path: str | None) -> dict[str, float | None]:
 
 
 def diagnose_report(entry: Mapping[str, Any], out: Path) -> dict[str, Any]:
-    """The model's diagnose report: read from ``<out>/reports/<label>.json`` or measured."""
+    """The model's diagnose report: read from the entry's ``report`` file (e.g. the one a
+    model comparison keeps in ``results/comparison``), else from ``<out>/reports/<label>.json``,
+    else measured there."""
+    if entry.get("report"):
+        return json.loads(Path(entry["report"]).read_text())
     path = out / "reports" / f"{entry['label']}.json"
     if path.is_file():
         return json.loads(path.read_text())

@@ -9,6 +9,7 @@ import json
 import math
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -202,6 +203,29 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
     for name in RUNS:
         assert (out / "runs" / name / "trials.jsonl").read_text() == trials[name]
 
+    # --records: the evidence kept beside (one folder per environment) brings back a part
+    # whose measurements were lost; nothing is measured or planned again.
+    kept = tmp_path / "records"
+    _compare(data, out, "--records", str(kept))
+    assert sorted(p.name for p in (kept / "robodesk" / "runs").iterdir()) == sorted(RUNS)
+    for stage in ("runs", "metrics", "diagnose", "conditioning"):
+        shutil.rmtree(out / stage)
+    _compare(data, out, "--records", str(kept))
+    fifth = _log(out)[4]
+    status = {(x["stage"], x["name"]): x for x in fifth}
+    assert status[("records", str(kept / "robodesk"))]["runs"] == len(RUNS)
+    assert {x["status"] for x in fifth if x["stage"] in ("conditioning", "diagnose",
+                                                         "metrics")} == {"done earlier"}
+    assert [x["num_run"] for x in fifth if x["stage"] == "run"] == [0] * len(RUNS)
+    for name in RUNS:
+        (before,), (after,) = [json.loads(t) for t in trials[name].splitlines()], read_trials(
+            out / "runs" / name)
+        keys = ("task", "instance", "seed", "success", "actions", "timings")
+        assert {k: after[k] for k in keys} == {
+            **{k: before[k] for k in keys}, "timings": {"total_s": before["timings"]["total_s"]}}
+    assert (out / "results.md").read_text().split("## Training budget")[1].split(
+        "## Action conditioning")[0] == results.split("## Training budget")[1].split(
+        "## Action conditioning")[0]
 
 
 @pytest.mark.parametrize(
