@@ -41,9 +41,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from benchmarks import common
+from benchmarks.comparison.records import save_run
 from vp2.benchmark.diagnose_measures import spearman
 from vp2.benchmark.diagnose_score import (
     FEATURES,
@@ -55,7 +55,7 @@ from vp2.benchmark.diagnose_score import (
     leave_one_out,
 )
 from vp2.benchmark.results import read_trials
-from vp2.utils.io import atomic_path, json_safe, write_json_atomic
+from vp2.utils.io import json_safe, write_json_atomic
 
 ASSET = Path(__file__).resolve().parents[2] / "src" / "vp2" / "assets" / "diagnose_predictor.json"
 #: Fewest models an environment needs for a held-out figure.
@@ -101,31 +101,14 @@ def diagnose_report(entry: Mapping[str, Any], out: Path) -> dict[str, Any]:
     return report
 
 
-#: The fields of a control trial kept in ``results/diagnose/runs`` (results/README.md).
-COMPACT_FIELDS = ("task", "instance", "seed", "success", "first_success_step", "num_steps",
-                  "error", "instance_sha", "num_samples", "model_spec", "finished_at")
-
-
 def compact_run(run_dir: Path, dest: Path) -> int:
-    """Copies a control run into ``dest`` as ``results/diagnose/runs`` keeps one: its
-    ``config.yaml`` and one compact record per trial (:data:`COMPACT_FIELDS`; no actions, scores
-    or GIFs). Returns the trials copied."""
-    trials = read_trials(run_dir)
-    if not trials:
+    """Copies a control run into ``dest`` as ``results/`` keeps one: its ``config.yaml`` and
+    one compact record per trial (:func:`benchmarks.comparison.records.compact_trial`: outcome,
+    actions, wall time; no scores or GIFs). Returns the trials copied."""
+    copied = save_run(Path(run_dir), Path(dest))
+    if not copied:
         raise SystemExit(f"--compact {run_dir}: no trials there")
-    config = (run_dir / "config.yaml").read_text()
-    num_samples = yaml.safe_load(config)["config"]["planner"]["num_samples"]
-    rows = []
-    for t in trials:
-        row = {**t, "model_spec": (t.get("model") or {}).get("spec", t.get("model_spec")),
-               "num_samples": t.get("num_samples", num_samples)}
-        rows.append(json.dumps({k: row.get(k) for k in sorted(COMPACT_FIELDS)}))
-    dest.mkdir(parents=True, exist_ok=True)
-    with atomic_path(dest / "config.yaml") as tmp:
-        Path(tmp).write_text(config)
-    with atomic_path(dest / "trials.jsonl") as tmp:
-        Path(tmp).write_text("\n".join(rows) + "\n")
-    return len(rows)
+    return copied
 
 
 def _signed_spearman(values: Sequence[float | None], success: Sequence[float], sign: float):
