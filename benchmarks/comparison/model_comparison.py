@@ -593,20 +593,9 @@ def screenshot(html: Path, png: Path, width: int = 1200) -> str | None:
 # --------------------------------------------------------------------------- the driver
 
 
-def run_comparison(s: Settings, after_publish: Callable[[], object] | None = None) -> Path:
-    """Runs (or resumes) every stage; returns the path of ``results.md``. ``after_publish`` is
-    called each time the page is rewritten (a comparison of several environments rewrites its
-    combined page there, so a build that spans sessions shows what it finished)."""
-    if s.publish_only:
-        return publish_found(s)
-    published = after_publish or (lambda: None)
-    s.out.mkdir(parents=True, exist_ok=True)
-    stage_log = StageLog(s.out)
-    if s.records is not None:
-        restored = evidence.restore(s.records, s.out)
-        if any(restored.values()):
-            stage_log.add("records", str(s.records), "restored", **restored)
-    # What results.md reads besides the stages' files: the settings, and what was compared.
+def write_build_record(s: Settings) -> None:
+    """``comparison.json``: what ``results.md`` reads besides the stages' files (the settings,
+    and what was compared)."""
     record = {
         **dataclasses.asdict(s),
         "family_stages": {
@@ -623,6 +612,22 @@ def run_comparison(s: Settings, after_publish: Callable[[], object] | None = Non
         "torch_version": torch.__version__,
     }
     write_json_atomic(s.out / "comparison.json", json_safe(record))
+
+
+def run_comparison(s: Settings, after_publish: Callable[[], object] | None = None) -> Path:
+    """Runs (or resumes) every stage; returns the path of ``results.md``. ``after_publish`` is
+    called each time the page is rewritten (a comparison of several environments rewrites its
+    combined page there, so a build that spans sessions shows what it finished)."""
+    if s.publish_only:
+        return publish_found(s)
+    published = after_publish or (lambda: None)
+    s.out.mkdir(parents=True, exist_ok=True)
+    stage_log = StageLog(s.out)
+    if s.records is not None:
+        restored = evidence.restore(s.records, s.out)
+        if any(restored.values()):
+            stage_log.add("records", str(s.records), "restored", **restored)
+    write_build_record(s)
     write_zoo_cards(s)
     train_records = {f: train_family(s, f, stage_log) for f in s.families}
     specs = {f: model_spec(f, records) for f, records in train_records.items()}
