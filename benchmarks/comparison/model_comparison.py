@@ -727,8 +727,10 @@ def publish(
     shot_note = screenshot(report, s.out / "report.png")
     stage_log.add("report", "all", "written", screenshot=shot_note or "report.png")
     path = s.out / "results.md"
+    written = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     with atomic_path(path) as tmp:
-        tmp.write_text(results_markdown(s.out, shot_note, pending, notes=_notes_link(s, path)))
+        tmp.write_text(results_markdown(s.out, shot_note, pending, notes=_notes_link(s, path),
+                                        written=written))
     if s.docs is not None:  # the published copy, its screenshot beside it
         image = s.docs.with_name(s.docs.stem + "-report.png")
         if shot_note is None:
@@ -736,7 +738,8 @@ def publish(
                 tmp.write_bytes((s.out / "report.png").read_bytes())
         with atomic_path(s.docs) as tmp:
             notes = _notes_link(s, s.docs)
-            tmp.write_text(results_markdown(s.out, shot_note, pending, image.name, notes))
+            tmp.write_text(results_markdown(s.out, shot_note, pending, image.name, notes,
+                                            written))
     stage_log.add("results", "all", "written", pending=pending)
     return path
 

@@ -57,20 +57,24 @@ def results_markdown(
     pending: Sequence[str] = (),
     image: str = "report.png",
     notes: str | None = None,
+    written: str | None = None,
 ) -> str:
     """The page: budget, success per task, normalised means, action conditioning, metrics,
     the study and the report's screenshot (``screenshot_note``: why there is none; ``image``:
     its link from where the page is written). ``pending``: runs not finished yet (the page
     then says so at the top, and their columns say "pending"). ``notes``: the link, from where
     the page is written, to the Markdown file that reads the numbers; the page gets a
-    "Reading" section after the study that points there."""
+    "Reading" section after the study that points there. ``written``: the time it names
+    (default: now), so that two copies of one page agree."""
     s = json.loads((out / "comparison.json").read_text())
+    written = written or datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     lines = [
         "# Model comparison: five families at one training budget, judged by control",
         "",
-        f"Written {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')} "
+        f"Written {written} "
         f"by `python -m benchmarks.comparison.model_comparison` (vp2 {s['vp2_version']}, torch "
-        f"{s['torch_version']}); every number below is read from the files under `{out}`.",
+        f"{s['torch_version']}); every number below is read from the files under `{out}`"
+        f"{records_note(s)}.",
         "",
         "Rebuild (the same command resumes an interrupted build; on a finished folder it only "
         "rewrites the study, the report and this page):",
@@ -156,7 +160,8 @@ def combined_markdown(
         s = json.loads((out / "comparison.json").read_text())
         pending = [n for n in s["run_names"] if not (out / "runs" / n / "summary.json").is_file()]
         lines += ["", f"## {name}", "",
-                  f"Dataset `{s['data']}`, tasks {', '.join(s['tasks'])}; files under `{out}`.", ""]
+                  f"Dataset `{s['data']}`, tasks {', '.join(s['tasks'])}; files under `{out}`"
+                  f"{records_note(s)}.", ""]
         lines += pending_lines(out, pending)
         lines += [("#" + line) if line.startswith("## ") else line for line in body_lines(out, s)]
         image = images.get(out)
@@ -166,6 +171,14 @@ def combined_markdown(
     if notes:
         lines += ["", *reading_lines(notes)]
     return "\n".join(lines) + "\n"
+
+
+def records_note(s: dict[str, Any]) -> str:
+    """Where the build keeps its evidence (``--records``), as a clause; empty if nowhere."""
+    if not s.get("records"):
+        return ""
+    return (f" (their compact copy, kept in the repository: `{s['records']}`; "
+            "`benchmarks/comparison/records.py`)")
 
 
 def relative_link(target: Path, page: Path) -> str:

@@ -208,6 +208,8 @@ def test_model_comparison_smoke_runs_every_stage_and_resumes(tmp_path):
     kept = tmp_path / "records"
     _compare(data, out, "--records", str(kept))
     assert sorted(p.name for p in (kept / "robodesk" / "runs").iterdir()) == sorted(RUNS)
+    assert f"compact copy, kept in the repository: `{kept / 'robodesk'}`" in (
+        out / "results.md").read_text()
     for stage in ("runs", "metrics", "diagnose", "conditioning"):
         shutil.rmtree(out / stage)
     _compare(data, out, "--records", str(kept))
