@@ -77,6 +77,11 @@ def _write_json(path: Path, value: Any) -> bool:
     return True
 
 
+def _undated(config: dict[str, Any]) -> dict[str, Any]:
+    """A run's ``config.yaml`` without the time it was (re)written."""
+    return {k: v for k, v in config.items() if k != "written_at"}
+
+
 def save_run(run_dir: Path, dest: Path) -> int:
     """``run_dir``'s config and trials as compact records under ``dest``; returns the trials
     kept (0, writing nothing, for a run with no trial yet)."""
@@ -88,7 +93,10 @@ def save_run(run_dir: Path, dest: Path) -> int:
     config = (run_dir / "config.yaml").read_text()
     num_samples = (yaml.safe_load(config).get("config") or {}).get("planner", {}).get("num_samples")
     rows = [json.dumps(compact_trial(t, num_samples), sort_keys=True) for t in trials]
-    _write(dest / "config.yaml", config)
+    kept = dest / "config.yaml"
+    if not kept.is_file() or _undated(yaml.safe_load(kept.read_text())) != _undated(
+            yaml.safe_load(config)):  # a resumed run rewrites only its date: keep the first
+        _write(kept, config)
     _write(dest / "trials.jsonl", "\n".join(rows) + "\n")
     return len(rows)
 

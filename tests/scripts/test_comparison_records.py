@@ -68,8 +68,13 @@ def test_what_a_part_saves_it_restores_into_an_empty_out(tmp_path):
     for name in ("metrics/m/metrics.json", "diagnose/m.json", "conditioning/m.json"):
         assert json.loads((again / name).read_text()) == json.loads((out / name).read_text())
     assert (again / "runs/m/config.yaml").read_text() == (out / "runs/m/config.yaml").read_text()
-    # a second save writes nothing new; a restore leaves what is there alone
+    # a second save writes nothing new, even after a resumed run re-dated its config; a
+    # restore leaves what is there alone
+    config = again / "runs" / "m" / "config.yaml"
+    config.write_text("written_at: '2026-11-28T00:00:00'\n" + config.read_text())
+    records.save(again, saved)
     before = {p: p.stat().st_mtime_ns for p in saved.rglob("*") if p.is_file()}
+    config.write_text(config.read_text().replace("2026-11-28", "2026-11-29"))
     records.save(again, saved)
     assert {p: p.stat().st_mtime_ns for p in saved.rglob("*") if p.is_file()} == before
     assert records.restore(saved, again) == {
