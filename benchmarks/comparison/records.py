@@ -24,9 +24,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+
+import yaml
 
 from vp2.benchmark.results import read_trials
 from vp2.utils.io import atomic_path, json_safe, write_json_atomic
@@ -85,11 +87,9 @@ def _undated(config: dict[str, Any]) -> dict[str, Any]:
 def save_run(run_dir: Path, dest: Path) -> int:
     """``run_dir``'s config and trials as compact records under ``dest``; returns the trials
     kept (0, writing nothing, for a run with no trial yet)."""
-    trials = read_trials(run_dir) if (run_dir / "trials.jsonl").is_file() else []
+    trials = read_trials(run_dir)  # a missing file reads as no trials
     if not trials:
         return 0
-    import yaml
-
     config = (run_dir / "config.yaml").read_text()
     num_samples = (yaml.safe_load(config).get("config") or {}).get("planner", {}).get("num_samples")
     rows = [json.dumps(compact_trial(t, num_samples), sort_keys=True) for t in trials]
@@ -101,22 +101,12 @@ def save_run(run_dir: Path, dest: Path) -> int:
     return len(rows)
 
 
-def save(out: Path, records: Path) -> dict[str, int]:
-    """Copies what ``out`` (one environment's part) measured into ``records``; returns the
-    count of each kind saved (runs: trials)."""
-    counts = {"runs": 0, "metrics": 0, "diagnose": 0, "conditioning": 0}
-    for run_dir in sorted((out / "runs").glob("*/")):
-        counts["runs"] += save_run(run_dir, records / "runs" / run_dir.name)
-    for path in sorted((out / "metrics").glob("*/metrics.json")):
-        _write_json(records / "metrics" / f"{path.parent.name}.json", json.loads(path.read_text()))
-        counts["metrics"] += 1
-    for path in sorted((out / "diagnose").glob("*.json")):
-        _write_json(records / "diagnose" / path.name, json.loads(path.read_text())["report"])
-        counts["diagnose"] += 1
-    for path in sorted((out / "conditioning").glob("*.json")):
-        _write_json(records / "conditioning" / path.name, json.loads(path.read_text()))
-        counts["conditioning"] += 1
-    return counts
+def _metrics_file(out: Path, name: str) -> Path:
+    return out / "metrics" / name / "metrics.json"
+
+
+def _file_in(folder: str) -> Callable[[Path, str], Path]:
+    return lambda out, name: out / folder / f"{name}.json"
 
 
 def diagnose_record(report: dict[str, Any]) -> dict[str, Any]:
@@ -125,33 +115,59 @@ def diagnose_record(report: dict[str, Any]) -> dict[str, Any]:
     return {"settings": {k: given.get(k) for k in DIAGNOSE_SETTINGS}, "report": report}
 
 
+def _same(value: Any) -> Any:
+    return value
+
+
+#: The JSON outputs kept, per kind: where a part keeps one (``out``, name), and how its value
+#: becomes the kept one and back (the diagnose record keeps only its report).
+JSON_KINDS: dict[str, tuple[Callable[[Path, str], Path], Callable[[Any], Any], Callable[[Any], Any]]] = {
+    "metrics": (_metrics_file, _same, _same),
+    "diagnose": (_file_in("diagnose"), lambda record: record["report"], diagnose_record),
+    "conditioning": (_file_in("conditioning"), _same, _same),
+}
+
+
+def _names(out: Path, kind: str) -> list[str]:
+    """The names of the ``kind`` outputs under a part's ``out``."""
+    if kind == "metrics":
+        return sorted(p.parent.name for p in (out / "metrics").glob("*/metrics.json"))
+    return sorted(p.stem for p in (out / kind).glob("*.json"))
+
+
+def save(out: Path, records: Path) -> dict[str, int]:
+    """Copies what ``out`` (one environment's part) measured into ``records``; returns the
+    count of each kind saved (runs: trials)."""
+    counts = {"runs": sum(save_run(d, records / "runs" / d.name)
+                          for d in sorted((out / "runs").glob("*/")))}
+    for kind, (where, to_kept, _) in JSON_KINDS.items():
+        names = _names(out, kind)
+        for name in names:
+            value = to_kept(json.loads(where(out, name).read_text()))
+            _write_json(records / kind / f"{name}.json", value)
+        counts[kind] = len(names)
+    return counts
+
+
 def restore(records: Path, out: Path) -> dict[str, int]:
     """Copies into ``out`` what ``records`` holds and ``out`` lacks; returns the count of each
     kind restored (runs: trials). A run directory that already holds trials is left alone (its
     own records are newer or equal)."""
-    counts = {"runs": 0, "metrics": 0, "diagnose": 0, "conditioning": 0}
+    counts = {"runs": 0}
     for saved in sorted((records / "runs").glob("*/trials.jsonl")):
         run_dir = out / "runs" / saved.parent.name
-        if (run_dir / "trials.jsonl").is_file() and read_trials(run_dir):
+        if read_trials(run_dir):
             continue
         _write(run_dir / "config.yaml", (saved.parent / "config.yaml").read_text())
         _write(run_dir / "trials.jsonl", saved.read_text())
-        counts["runs"] += len(read_trials(run_dir))
-    for saved in sorted((records / "metrics").glob("*.json")):
-        path = out / "metrics" / saved.stem / "metrics.json"
-        if not path.is_file():
-            _write(path, saved.read_text())
-            counts["metrics"] += 1
-    for saved in sorted((records / "diagnose").glob("*.json")):
-        path = out / "diagnose" / saved.name
-        if not path.is_file():
-            _write_json(path, diagnose_record(json.loads(saved.read_text())))
-            counts["diagnose"] += 1
-    for saved in sorted((records / "conditioning").glob("*.json")):
-        path = out / "conditioning" / saved.name
-        if not path.is_file():
-            _write(path, saved.read_text())
-            counts["conditioning"] += 1
+        counts["runs"] += len(read_trials(saved))
+    for kind, (where, _, from_kept) in JSON_KINDS.items():
+        counts[kind] = 0
+        for saved in sorted((records / kind).glob("*.json")):
+            path = where(out, saved.stem)
+            if not path.is_file():
+                _write_json(path, from_kept(json.loads(saved.read_text())))
+                counts[kind] += 1
     return counts
 
 
@@ -168,8 +184,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         sys.exit(f"records.py: {args.out} is not a directory: nothing to save")
     if args.action == "restore" and not args.records.is_dir():
         sys.exit(f"records.py: {args.records} is not a directory: nothing to restore")
-    counts = (save if args.action == "save" else restore)(
-        *((args.out, args.records) if args.action == "save" else (args.records, args.out)))
+    counts = save(args.out, args.records) if args.action == "save" else restore(args.records,
+                                                                                args.out)
     print(f"{args.action}d: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
 
 
