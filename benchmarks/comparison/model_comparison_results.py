@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from vp2.benchmark.diagnose_score import load_predictor, predicted_score
 from vp2.benchmark.diagnose_verdicts import TOP_FRACTION
 from vp2.report.study import ALL_TASKS, STUDY_METRICS
 
@@ -382,6 +383,7 @@ def diagnosis_lines(out: Path, s: dict[str, Any]) -> list[str]:
         "predicted success | measured success | time: diagnose / control |",
         "|---|---|---|---|---|---|---|",
     ]
+    rescored = False
     for name in names:
         record = records[name]
         if record is None:
@@ -396,7 +398,11 @@ def diagnosis_lines(out: Path, s: dict[str, Any]) -> list[str]:
             if plan.get("instances") else "–"
         )  # fmt: skip
         rho = (r["planning"].get("repeatability") or {}).get("median_rho")
-        predicted = r.get("predicted_control_score")
+        predicted, mark = r.get("predicted_control_score"), ""
+        if predicted is None:  # a report made before vp2 shipped a predictor for its env
+            predicted, _ = predicted_score(r, load_predictor())
+            mark = "†" if predicted is not None else ""
+            rescored = rescored or bool(mark)
         summary = _read(out / "runs" / name / "summary.json")
         measured = _pct(summary.get("mean")) if summary else "pending"
         seconds, trials = control_seconds(out / "runs" / name)
@@ -405,9 +411,15 @@ def diagnosis_lines(out: Path, s: dict[str, Any]) -> list[str]:
         )
         lines.append(
             f"| {name} | {verdict} | {in_top} | {_num(rho)} | "
-            f"{_pct(predicted) + '%' if predicted is not None else '–'} | "
+            f"{_pct(predicted) + '%' + mark if predicted is not None else '–'} | "
             f"{measured + '%' if summary else measured} | {time_cell} |"
         )
+    if rescored:
+        lines += [
+            "",
+            "†: the report predates the predictor vp2 now ships for this environment; the "
+            "score is what that predictor gives the report's measures.",
+        ]
     return [*lines, ""]
 
 

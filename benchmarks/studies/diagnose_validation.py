@@ -18,7 +18,11 @@
 For each model it runs ``vp2 diagnose`` (default settings; the report is kept under
 ``<out>/reports/<label>.json`` and reused), reads the control success (every trial of the run
 directories in ``control`` on the model's environment) and the perceptual metrics (SSIM, LPIPS,
-FVD of ``vp2 metrics``, where given). Then, per environment with at least 3 models:
+FVD of ``vp2 metrics``, where given). Then, per environment with at least 5 models (an
+environment with fewer borrows the predictor of the environment with the most models, rescaled
+by the two environments' oracle success in the shipped oracle table of the diagnoses' planner
+budget, :func:`vp2.benchmark.diagnose_score.transfer`; its models are all held out from that
+fit, so their predictions are validated as they are, given at least 3):
 
 * the **held-out predictions**: each model's score from the predictor
   (:mod:`vp2.benchmark.diagnose_score`) fitted on the *other* models, its ridge penalty chosen
@@ -53,6 +57,8 @@ from vp2.benchmark.diagnose_score import (
     features,
     fit,
     leave_one_out,
+    predict,
+    transfer,
 )
 from vp2.benchmark.results import read_trials
 from vp2.utils.io import json_safe, write_json_atomic
@@ -60,6 +66,31 @@ from vp2.utils.io import json_safe, write_json_atomic
 ASSET = Path(__file__).resolve().parents[2] / "src" / "vp2" / "assets" / "diagnose_predictor.json"
 #: Fewest models an environment needs for a held-out figure.
 MIN_MODELS = 3
+#: Fewest models an environment needs to fit its own predictor (six weights; with fewer it
+#: borrows another environment's, :func:`vp2.benchmark.diagnose_score.transfer`).
+MIN_FIT = 5
+
+
+def oracle_rates(num_samples: int, asset: Path | None = None) -> tuple[str, dict[str, float]]:
+    """``(table name, {env: success fraction})``: the shipped oracle table whose every task
+    was measured at ``num_samples`` planner samples, its successes pooled per environment.
+
+    Raises:
+        ValueError: if no shipped table is at that budget.
+    """
+    from vp2.benchmark.shipped_oracle import load_shipped_oracle
+
+    shipped = load_shipped_oracle(asset)
+    for table in shipped.tables if shipped else ():
+        if table.tasks and all(t.num_samples == num_samples for t in table.tasks.values()):
+            pooled: dict[str, list[int]] = {}
+            for name, t in table.tasks.items():
+                acc = pooled.setdefault(name.split("/")[0], [0, 0])
+                acc[0] += t.successes
+                acc[1] += t.trials
+            return table.name, {env: s / n for env, (s, n) in sorted(pooled.items())}
+    tables = shipped.table_list() if shipped else "no oracle asset"
+    raise ValueError(f"no shipped oracle table at {num_samples} samples ({tables})")
 
 
 def control_success(run_dirs: Sequence[str], env: str) -> tuple[float, int]:
@@ -119,35 +150,48 @@ def _signed_spearman(values: Sequence[float | None], success: Sequence[float], s
     return spearman(a, b), len(pairs)
 
 
-def validate(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+def _spearman_table(models: Sequence[Mapping[str, Any]], held_out: Sequence[float],
+                    extra: Mapping[str, tuple[float | None, int]] | None = None):
+    success = [m["success"] for m in models]
+    table = {"predicted (held out)": _signed_spearman(held_out, success, 1.0), **(extra or {})}
+    for key, sign in (("ssim", 1.0), ("lpips", -1.0), ("fvd", -1.0)):
+        table[key] = _signed_spearman([m[key] for m in models], success, sign)
+    for name in FEATURES:  # each measure alone, as it is: nothing fitted
+        table[f"{name} alone"] = _signed_spearman(
+            [m["features"][name] for m in models], success, 1.0
+        )
+    return {k: {"rho": v[0], "models": v[1]} for k, v in table.items()}
+
+
+def validate(
+    rows: Sequence[Mapping[str, Any]],
+    rates: tuple[str, Mapping[str, float]] | None = None,
+) -> dict[str, Any]:
     """Per environment: held-out predictions and the Spearman of each predictor with success.
 
     Args:
         rows: One per model: ``label``, ``env``, ``features``, ``success``, ``trials``,
             ``ssim``, ``lpips``, ``fvd``.
+        rates: ``(table, {env: oracle success})`` (:func:`oracle_rates`) for the environments
+            with fewer than :data:`MIN_FIT` models; ``None``: those are skipped.
     """
     result: dict[str, Any] = {}
-    for env in sorted({r["env"] for r in rows}):
+    envs = sorted({r["env"] for r in rows})
+    few = [e for e in envs if sum(r["env"] == e for r in rows) < MIN_FIT]
+    for env in envs:
         models = [r for r in rows if r["env"] == env]
-        if len(models) < MIN_MODELS:
-            result[env] = {"models": len(models), "skipped": f"fewer than {MIN_MODELS} models"}
+        if env in few:
             continue
         feats = [m["features"] for m in models]
         success = [m["success"] for m in models]
         trials = [m["trials"] for m in models]
         held_out = leave_one_out(feats, success, trials, ridge="auto")  # nested choice
-        rho, _ = _signed_spearman(held_out, success, 1.0)
         fixed = leave_one_out(feats, success, trials, ridge=RIDGE)
-        table = {"predicted (held out)": (rho, len(models)),
-                 f"predicted (held out), ridge fixed at {RIDGE:g}":
-                     _signed_spearman(fixed, success, 1.0)}  # fmt: skip
-        for key, sign in (("ssim", 1.0), ("lpips", -1.0), ("fvd", -1.0)):
-            table[key] = _signed_spearman([m[key] for m in models], success, sign)
-        for name in FEATURES:  # each measure alone, as it is: nothing fitted
-            table[f"{name} alone"] = _signed_spearman(
-                [m["features"][name] for m in models], success, 1.0
-            )
+        spearman_table = _spearman_table(models, held_out, {
+            f"predicted (held out), ridge fixed at {RIDGE:g}": _signed_spearman(fixed, success, 1.0)
+        })  # fmt: skip
         predictor = fit(feats, success, trials, choose_ridge(feats, success, trials))
+        rho = spearman_table["predicted (held out)"]["rho"]
         predictor.update(
             models_fitted=len(models),
             validation={"held_out_spearman": rho, "models": len(models)},
@@ -155,7 +199,31 @@ def validate(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         result[env] = {
             "models": len(models),
             "held_out": {m["label"]: p for m, p in zip(models, held_out, strict=True)},
-            "spearman": {k: {"rho": v[0], "models": v[1]} for k, v in table.items()},
+            "spearman": spearman_table,
+            "predictor": predictor,
+        }
+    fitted = [e for e in envs if "predictor" in result.get(e, {})]
+    source = max(fitted, key=lambda e: (result[e]["models"], e), default=None)
+    for env in few:
+        models = [r for r in rows if r["env"] == env]
+        if source is None or rates is None or env not in rates[1]:
+            why = "no environment with a fitted predictor" if source is None else (
+                f"no oracle rate for {env}" if rates is not None else "no oracle rates given")
+            result[env] = {"models": len(models),
+                           "skipped": f"fewer than {MIN_FIT} models to fit, and {why}"}  # fmt: skip
+            continue
+        predictor = transfer(result[source]["predictor"], source, env, rates[1], rates[0])
+        held_out = [predict(predictor, m["features"]) for m in models]
+        spearman_table = _spearman_table(models, held_out)
+        predictor["validation"] = {
+            "held_out_spearman": spearman_table["predicted (held out)"]["rho"],
+            "models": len(models),
+        }
+        result[env] = {
+            "models": len(models),
+            "transferred_from": source,
+            "held_out": {m["label"]: p for m, p in zip(models, held_out, strict=True)},
+            "spearman": spearman_table,
             "predictor": predictor,
         }
     return result
@@ -170,6 +238,16 @@ def validation_markdown(
         if "skipped" in res:
             lines += [f"Not validated: {res['skipped']} ({res['models']}).", ""]
             continue
+        if "transferred_from" in res:
+            moved = res["predictor"]["transfer"]
+            src, rates = moved["from"], moved["oracle_rates"]
+            lines += [
+                f"Fewer than {MIN_FIT} models: the {src} predictor, its prediction times the "
+                f"oracles' success ratio {env}/{src} in table `{moved['table']}` "
+                f"({rates[env]:.3f}/{rates[src]:.3f} = {moved['rescale']:.3f}). None of these "
+                "models was fitted on: every prediction is held out.",
+                "",
+            ]
         lines += [
             "| model | measured success | trials | predicted (held out) | SSIM | LPIPS | FVD | "
             + " | ".join(FEATURES)
@@ -197,6 +275,23 @@ def validation_markdown(
     return "\n".join(lines)
 
 
+def _rates_for(
+    rows: Sequence[Mapping[str, Any]], reports: Sequence[Mapping[str, Any]]
+) -> tuple[str, dict[str, float]] | None:
+    """The oracle rates a transfer uses, when some environment has fewer than :data:`MIN_FIT`
+    models: the shipped table at the diagnoses' planner budget (one budget for all)."""
+    envs = [r["env"] for r in rows]
+    if all(envs.count(e) >= MIN_FIT for e in envs):
+        return None
+    budgets = {(r.get("settings") or {}).get("num_samples") for r in reports}
+    if len(budgets) != 1 or None in budgets:
+        raise SystemExit(
+            f"the diagnose reports were measured at planner budgets {sorted(map(str, budgets))}; "
+            "a transfer between environments needs them all at one budget"
+        )
+    return oracle_rates(int(budgets.pop()))
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = common.argument_parser(__spec__.name, __doc__ or "")
     parser.add_argument("--models", type=Path, help="JSON list of models (see above)")
@@ -222,16 +317,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     labels = [e["label"] for e in entries]
     if len(set(labels)) != len(labels):
         raise SystemExit(f"{args.models}: labels must be unique, got {labels}")
-    rows = []
+    rows, reports = [], []
     for entry in entries:
         report = diagnose_report(entry, args.out)
+        reports.append(report)
         success, trials = control_success(entry["control"], entry["env"])
         rows.append({
             "label": entry["label"], "env": entry["env"], "features": features(report),
             "success": success, "trials": trials, **perceptual(entry.get("metrics")),
         })  # fmt: skip
         print(f"{entry['label']}: success {success:.2f} ({trials} trials)", flush=True)
-    result = validate(rows)
+    result = validate(rows, _rates_for(rows, reports))
     command = common.command_line(__spec__.name, argv)
     write_json_atomic(
         args.out / "validation.json",

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.benchmark import tiny_suite_path
+from tests.benchmark import TABLETOP_BLIND_SCORE, TABLETOP_PREDICTOR, tiny_suite_path
 from tests.models.synthetic import write_moving_square_dataset
 from vp2.benchmark import RunConfig, run_benchmark
 from vp2.benchmark.diagnose import (
@@ -42,9 +42,6 @@ from vp2.benchmark.diagnose_measures import (
 )
 from vp2.data.suite import TaskSuite
 from vp2.planning.config import PlannerConfig
-
-#: The shipped predictor is fitted on RoboDesk models only (vp2/assets/diagnose_predictor.json).
-NO_TABLETOP_PREDICTOR = "not fitted for tabletop: no control runs of its models yet"
 
 HERE = "tests.benchmark.test_diagnose"
 #: Pixels a square moves per unit of action (the dataset's speed: size / 8).
@@ -232,8 +229,8 @@ def test_repeat_last_frame_report(data, suite, tmp_path):
     saved = json.loads(path.read_text())
     assert saved["format"] == "vp2-diagnose/1" and saved["env"] == "tabletop"
     assert saved["env_source"] == "flag" and saved["model"]["name"] == "repeat_last_frame"
-    assert saved["predicted_control_score"] is None
-    assert saved["predicted_control_score_reason"] == NO_TABLETOP_PREDICTOR
+    assert saved["predicted_control_score"] == pytest.approx(TABLETOP_BLIND_SCORE, abs=1e-5)
+    assert saved["predicted_control_score_reason"] == TABLETOP_PREDICTOR
     assert set(saved["action_conditioning"]) >= {"ratio", "ci", "mse_true", "mse_shuffled",
                                                  "wins", "clips", "sign_p", "moving",
                                                  "trajectories", "trajectory_ci"}
@@ -246,7 +243,7 @@ def test_repeat_last_frame_report(data, suite, tmp_path):
     assert len(lines) == 9 and lines[1].startswith("action conditioning: shuffled/true error ")
     assert lines[-3] == "agreement with the simulator: not measured: no simulator scores " \
         "(--no-oracle-agreement, or a model that is the simulator)"
-    assert lines[-2] == f"predicted control score: {NO_TABLETOP_PREDICTOR}"
+    assert lines[-2] == f"predicted control score: 0% success ({TABLETOP_PREDICTOR})"
 
 
 def test_missing_dataset_names_how_to_make_it(suite, tmp_path, monkeypatch):

@@ -21,6 +21,7 @@ from vp2.benchmark.diagnose_score import (
     leave_one_out,
     predict,
     predicted_score,
+    transfer,
 )
 
 
@@ -129,6 +130,64 @@ def test_predicted_score_says_why_when_there_is_none():
     assert score is None and "fitted on other measures" in reason and "--write-asset" in reason
 
 
+def test_a_transferred_predictor_rescales_by_the_oracles_ratio():
+    rows, success = _synthetic(5)
+    source = fit(rows, success, [10] * 5)
+    source.update(models_fitted=5, validation={"held_out_spearman": 0.9, "models": 5})
+    moved = transfer(source, "robodesk", "tabletop", {"robodesk": 0.8, "tabletop": 0.2}, "t50")
+    assert moved["transfer"]["rescale"] == pytest.approx(0.25)
+    assert "validation" not in moved  # the source's figure is not the target's
+    for row in rows:
+        assert predict(moved, row) == pytest.approx(0.25 * predict(source, row), rel=1e-12)
+    moved["validation"] = {"held_out_spearman": 0.5, "models": 3}
+    report = _report(1.5, 0.5, 11, 0.8, 2.0, env="tabletop")
+    score, reason = predicted_score(report, {"predictors": {"tabletop": moved}})
+    assert score == pytest.approx(0.25 * predict(source, features(report)))
+    assert reason == (
+        "success fraction, the robodesk predictor (fitted on 5 robodesk models) times the "
+        "oracles' success ratio tabletop/robodesk, 20%/80% (table t50); on tabletop models: "
+        "Spearman +0.50 over 3 models"
+    )
+    with pytest.raises(ValueError, match="needs both oracle rates"):
+        transfer(source, "robodesk", "tabletop", {"robodesk": 0.8}, "t50")
+
+
+def test_an_environment_with_few_models_borrows_the_fitted_one(tmp_path):
+    rows, success = _synthetic(6)
+    fitted = [{"label": f"r{k}", "env": "robodesk", "features": r, "success": y, "trials": 10,
+               "ssim": None, "lpips": None, "fvd": None}
+              for k, (r, y) in enumerate(zip(rows, success, strict=True))]  # fmt: skip
+    # Three tabletop models, success in the order of their measures, and perceptual metrics
+    # that favour the worst (as repeat-last-frame's do on the tabletop).
+    few = [{**fitted[k], "label": f"t{k}", "env": "tabletop", "success": y, "fvd": f}
+           for k, y, f in ((0, 0.0, 100.0), (3, 0.05, 200.0), (5, 0.1, 300.0))]  # fmt: skip
+    result = dv.validate(fitted + few, ("t50", {"robodesk": 0.5, "tabletop": 0.1}))
+    table = result["tabletop"]
+    assert table["transferred_from"] == "robodesk" and table["models"] == 3
+    source = result["robodesk"]["predictor"]
+    for m in few:
+        assert table["held_out"][m["label"]] == pytest.approx(0.2 * predict(source, m["features"]))
+    assert table["spearman"]["predicted (held out)"] == {"rho": pytest.approx(1.0), "models": 3}
+    assert table["spearman"]["fvd"]["rho"] == pytest.approx(-1.0)
+    assert table["predictor"]["validation"] == {"held_out_spearman": pytest.approx(1.0),
+                                                "models": 3}  # fmt: skip
+    page = dv.validation_markdown(fitted + few, result, "cmd")
+    assert "Fewer than 5 models: the robodesk predictor" in page and "= 0.200)" in page
+    # Without oracle rates there is nothing to rescale by: said, not guessed.
+    alone = dv.validate(fitted + few)["tabletop"]
+    assert alone == {"models": 3,
+                     "skipped": "fewer than 5 models to fit, and no oracle rates given"}
+
+
+def test_oracle_rates_pool_the_shipped_table_of_the_budget():
+    table, rates = dv.oracle_rates(50)
+    # samples-50: RoboDesk 50 of 70 trials, the tabletop 6 of 40 (docs/measurements.md).
+    assert table == "samples-50"
+    assert rates == {"robodesk": pytest.approx(50 / 70), "tabletop": pytest.approx(6 / 40)}
+    with pytest.raises(ValueError, match="no shipped oracle table at 123 samples"):
+        dv.oracle_rates(123)
+
+
 def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path):
     rows, success = _synthetic(6)
     entries = []
@@ -202,6 +261,13 @@ def test_the_shipped_predictor_orders_a_planning_model_above_a_blind_one():
     good, reason = predicted_score(uses, asset)
     bad, _ = predicted_score(blind, asset)
     assert good > 0.5 > 0.05 > bad and "fitted on 10 models (held-out Spearman +0.90" in reason
+    # The tabletop borrows it, rescaled by the oracles' success at 50 samples (6/40 vs 50/70),
+    # validated on the tabletop's three models with control runs.
+    tabletop = asset["predictors"]["tabletop"]
+    assert tabletop["transfer"]["rescale"] == pytest.approx(0.15 / (50 / 70))
+    assert tabletop["validation"] == {"held_out_spearman": 0.5, "models": 3}
+    moved, _ = predicted_score({**uses, "env": "tabletop"}, asset)
+    assert moved == pytest.approx(good * 0.21)
 
 
 def test_the_shipped_predictor_rebuilds_from_its_committed_evidence(tmp_path, monkeypatch):
@@ -226,6 +292,8 @@ def test_the_shipped_predictor_rebuilds_from_its_committed_evidence(tmp_path, mo
     assert rebuilt["validation"]["held_out_spearman"] == pytest.approx(
         shipped["validation"]["held_out_spearman"])
     assert rebuilt["models_fitted"] == shipped["models_fitted"] == 10
+    moved = json.loads((tmp_path / "asset.json").read_text())["predictors"]["tabletop"]
+    assert moved["transfer"] == load_predictor()["predictors"]["tabletop"]["transfer"]
 
 
 def test_a_control_run_is_copied_compactly_and_reads_as_the_same_success(tmp_path):

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.benchmark import TABLETOP_BLIND_SCORE, TABLETOP_PREDICTOR
 from tests.benchmark.test_diagnose import HERE
 from tests.models.synthetic import write_moving_square_dataset
 from vp2 import cli
@@ -15,7 +16,6 @@ from vp2.cli import diagnose as diagnose_cmd
 from vp2.cli._fields import build
 
 #: The shipped predictor is fitted on RoboDesk models only (vp2/assets/diagnose_predictor.json).
-NO_TABLETOP_PREDICTOR = "not fitted for tabletop: no control runs of its models yet"
 
 
 @pytest.fixture(scope="module")
@@ -67,12 +67,12 @@ def test_prints_a_verdict_per_measure_and_writes_the_report(data, tmp_path, caps
         "candidate in the model's top 10% on 0 -> the model's ranking of the candidates is not "
         "the simulator's: its favourites are not what would happen"
     )
-    assert printed[7] == f"predicted control score: {NO_TABLETOP_PREDICTOR}"
+    assert printed[7] == f"predicted control score: 0% success ({TABLETOP_PREDICTOR})"
     assert printed[-1] == f"wrote {out}"
     report = json.loads(out.read_text())
     assert report["verdicts"]["action_conditioning"]["status"] == "blind"
     assert report["action_conditioning"]["clips"] == 8
-    assert report["predicted_control_score"] is None
+    assert report["predicted_control_score"] == pytest.approx(TABLETOP_BLIND_SCORE, abs=1e-5)
 
 
 def test_default_report_path_and_missing_dataset(tmp_path, monkeypatch, capsys):

@@ -552,3 +552,24 @@ def test_metrics_skipped_for_missing_fvd_weights_are_measured_again(comparison, 
     assert calls == [None, fvd] and json.loads(path.read_text())["metrics"]["fvd"] == 9.0
     comparison.metrics_stage(s, "m", "spec", log, fvd)
     assert calls == [None, fvd]
+
+
+def test_a_diagnosis_made_before_its_environments_predictor_gets_the_shipped_score(tmp_path):
+    from benchmarks.comparison.model_comparison_results import diagnosis_lines
+
+    from vp2.benchmark.diagnose_score import features, load_predictor, predict
+
+    report = json.loads((REPO / "results/comparison/tabletop/diagnose/svg_prime.json").read_text())
+    assert report["predicted_control_score"] is None  # measured before the tabletop had one
+    settings = {k: report["settings"][k] for k in ("clips", "instances_per_task", "num_samples")}
+    (tmp_path / "diagnose").mkdir()
+    for name, predicted in (("old", None), ("new", 0.4)):
+        record = {"settings": {**settings, "env": "tabletop"},
+                  "report": {**report, "predicted_control_score": predicted}}  # fmt: skip
+        (tmp_path / "diagnose" / f"{name}.json").write_text(json.dumps(record))
+    text = "\n".join(diagnosis_lines(tmp_path, {"metrics_names": ["old", "new"]}))
+    rows = {r[0]: r for r in _table(text, "| model |")[2:]}
+    expected = predict(load_predictor()["predictors"]["tabletop"], features(report))
+    assert rows["old"][4] == f"{100 * expected:.0f}%†" == "13%†"
+    assert rows["new"][4] == "40%"  # a report's own score stands
+    assert "†: the report predates the predictor vp2 now ships" in text

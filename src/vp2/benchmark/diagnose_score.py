@@ -9,6 +9,11 @@ each fraction), applies it (:func:`predict`), and validates it **leave-one-model
 ridge penalty is chosen from :data:`RIDGE_GRID` by the leave-one-out deviance of the models a
 predictor is fitted on (:func:`choose_ridge`; nested inside the validation's leave-one-out).
 
+An environment with too few models' control runs to fit its own predictor borrows another's
+(:func:`transfer`): the same constants, the success they predict rescaled by the ratio of the
+two environments' simulator oracle success at the diagnose's planner budget. Its validation is
+then on all its models, none of which the constants were fitted on.
+
 The fitted constants ship as ``vp2/assets/diagnose_predictor.json`` (written by
 ``benchmarks.studies.diagnose_validation``, which also measures the held-out Spearman); without
 that file, or without constants for the report's environment, :func:`predicted_score` says why
@@ -147,9 +152,39 @@ def predict(predictor: Mapping[str, Any], row: Mapping[str, float]) -> float:
             f"{list(FEATURES)}: refit it (benchmarks.studies.diagnose_validation)"
         )
     x = (_matrix([row])[0] - np.asarray(predictor["mean"])) / np.asarray(predictor["scale"])
-    return float(
-        _sigmoid(np.asarray(predictor["intercept"] + x @ np.asarray(predictor["weights"])))
-    )
+    p = float(_sigmoid(np.asarray(predictor["intercept"] + x @ np.asarray(predictor["weights"]))))
+    rescale = float((predictor.get("transfer") or {}).get("rescale", 1.0))
+    return min(1.0, p * rescale)
+
+
+def transfer(
+    predictor: Mapping[str, Any], source: str, target: str, oracle_rates: Mapping[str, float],
+    table: str,
+) -> dict[str, Any]:
+    """``source``'s fitted predictor applied to ``target``'s models: the same constants, the
+    predicted success multiplied by ``oracle_rates[target] / oracle_rates[source]`` (the
+    simulator oracle's success in each environment, from the shipped oracle table ``table``).
+
+    What carries over is how close a model's measures come to those of models that plan; what
+    a perfect model can reach differs by environment, and the oracle measures that.
+
+    Raises:
+        ValueError: if either rate is missing or the source's is not positive.
+    """
+    rate_s, rate_t = oracle_rates.get(source), oracle_rates.get(target)
+    if rate_s is None or rate_t is None or rate_s <= 0:
+        raise ValueError(
+            f"transfer {source} -> {target} needs both oracle rates, the source's positive; "
+            f"got {dict(oracle_rates)} from table {table!r}"
+        )
+    out = {k: v for k, v in predictor.items() if k not in ("validation", "transfer")}
+    out["transfer"] = {
+        "from": source,
+        "table": table,
+        "oracle_rates": {source: float(rate_s), target: float(rate_t)},
+        "rescale": float(rate_t) / float(rate_s),
+    }
+    return out
 
 
 def leave_one_out(
@@ -214,9 +249,12 @@ def predicted_score(
         return None, NO_PREDICTOR
     predictor = (asset.get("predictors") or {}).get(report.get("env"))
     if predictor is None:
-        return None, f"not fitted for {report.get('env')}: no control runs of its models yet"
-    plan = (report.get("planning") or {}).get("scripted_plan") or {}
-    if not plan.get("instances"):
+        return None, (
+            f"not fitted for {report.get('env')}: too few of its models have control runs"
+        )
+    planning = report.get("planning") or {}
+    # Planned on some instances (a suite without scripted plans still measures the rest).
+    if not (planning.get("instances") or (planning.get("scripted_plan") or {}).get("instances")):
         return None, "not predicted: the planning measures were skipped (--instances-per-task 0)"
     if not fitted_on_these_features(predictor):
         return None, (
@@ -231,6 +269,17 @@ def predicted_score(
         if rho is not None
         else "unvalidated"
     )
-    return predict(
-        predictor, features(report)
-    ), f"success fraction, predictor fitted on {predictor.get('models_fitted')} models ({note})"
+    score = predict(predictor, features(report))
+    moved = predictor.get("transfer")
+    if moved:
+        src, env = moved["from"], report.get("env")
+        rates = moved["oracle_rates"]
+        return score, (
+            f"success fraction, the {src} predictor (fitted on {predictor.get('models_fitted')} "
+            f"{src} models) times the oracles' success ratio {env}/{src}, "
+            f"{rates[env]:.0%}/{rates[src]:.0%} (table {moved['table']}); "
+            f"on {env} models: {note.replace('held-out ', '')}"
+        )
+    return score, (
+        f"success fraction, predictor fitted on {predictor.get('models_fitted')} models ({note})"
+    )
