@@ -48,6 +48,22 @@ def test_control_counts_finished_trials_per_environment(tmp_path):
     assert control_section([run, again], "robodesk")["successes"] == 3
 
 
+def test_control_reads_the_compact_records_results_keeps(tmp_path):
+    # benchmarks.comparison.records.compact_trial: the planner samples at the top level.
+    def compact(instance, success, samples=50):
+        trial = _trial("robodesk/push_red", instance, 0, success)
+        del trial["agent"]
+        return {**trial, "num_samples": samples, "model_spec": "zoo:maskvit-robodesk-120min"}
+
+    run = make_run(tmp_path / "a", [compact(0, True), compact(1, False)])
+    row = control_section([run], "robodesk")
+    assert (row["successes"], row["trials"], row["samples"]) == (1, 2, 50)
+    bare = make_run(tmp_path / "b", [{k: v for k, v in compact(0, True).items()
+                                      if k != "num_samples"}])  # fmt: skip
+    with pytest.raises(ValueError, match="push_red #0 seed 0: its record names no planner samples"):
+        control_section([bare], "robodesk")
+
+
 def test_control_refuses_mixed_protocols_and_empty_runs(tmp_path):
     a = make_run(tmp_path / "a", [_trial("robodesk/push_red", 0, 0, True)])
     b = make_run(tmp_path / "b", [_trial("robodesk/push_red", 1, 0, True, samples=200)])

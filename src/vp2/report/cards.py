@@ -27,6 +27,19 @@ def _run_settings(run_dir: Path) -> dict[str, Any]:
     return run.settings()
 
 
+def _planner_samples(record: dict[str, Any]) -> int:
+    """The planner samples of a trial: a full record's ``agent.planner``, or the top-level
+    ``num_samples`` of a compact one (the copies ``results/`` keeps)."""
+    planner = (record.get("agent") or {}).get("planner") or {}
+    value = planner.get("num_samples", record.get("num_samples"))
+    if value is None:
+        raise ValueError(
+            f"trial {record.get('task')} #{record.get('instance')} seed {record.get('seed')}: "
+            "its record names no planner samples (agent.planner.num_samples or num_samples)"
+        )
+    return int(value)
+
+
 def control_section(run_dirs: Sequence[str | os.PathLike[str]], env: str) -> dict[str, Any]:
     """The card's ``control`` row of ``env``: successes over the finished ``env`` trials of the
     run directories (the latest record per trial), with seeds, instances per task, planner
@@ -46,7 +59,7 @@ def control_section(run_dirs: Sequence[str | os.PathLike[str]], env: str) -> dic
         for record in read_trials(run_dir):
             if str(record.get("task", "")).startswith(f"{env}/") and is_ok(record):
                 records[(record["task"], int(record["instance"]), int(record["seed"]))] = record
-                samples.add(int(record["agent"]["planner"]["num_samples"]))
+                samples.add(_planner_samples(record))
                 steps.add(int(record["num_steps"]))
     if not records:
         raise ValueError(f"--control {', '.join(map(str, run_dirs))}: no finished {env} trial")
