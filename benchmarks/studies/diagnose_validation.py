@@ -206,9 +206,15 @@ def validate(
     source = max(fitted, key=lambda e: (result[e]["models"], e), default=None)
     for env in few:
         models = [r for r in rows if r["env"] == env]
-        if source is None or rates is None or env not in rates[1]:
-            why = "no environment with a fitted predictor" if source is None else (
-                f"no oracle rate for {env}" if rates is not None else "no oracle rates given")
+        if source is None:
+            why = "no environment with a fitted predictor"
+        elif rates is None:
+            why = "no oracle rates given"
+        elif env not in rates[1]:
+            why = f"no oracle rate for {env}"
+        else:
+            why = None
+        if why:
             result[env] = {"models": len(models),
                            "skipped": f"fewer than {MIN_FIT} models to fit, and {why}"}  # fmt: skip
             continue

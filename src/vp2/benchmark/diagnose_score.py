@@ -264,11 +264,7 @@ def predicted_score(
         )
     validation = predictor.get("validation") or {}
     rho = validation.get("held_out_spearman")
-    note = (
-        f"held-out Spearman {rho:+.2f} over {validation.get('models')} models"
-        if rho is not None
-        else "unvalidated"
-    )
+    figure = f"Spearman {rho:+.2f} over {validation.get('models')} models" if rho is not None else None
     score = predict(predictor, features(report))
     moved = predictor.get("transfer")
     if moved:
@@ -278,8 +274,9 @@ def predicted_score(
             f"success fraction, the {src} predictor (fitted on {predictor.get('models_fitted')} "
             f"{src} models) times the oracles' success ratio {env}/{src}, "
             f"{rates[env]:.0%}/{rates[src]:.0%} (table {moved['table']}); "
-            f"on {env} models: {note.replace('held-out ', '')}"
+            f"on {env} models: {figure or 'unvalidated'}"
         )
+    note = f"held-out {figure}" if figure else "unvalidated"
     return score, (
         f"success fraction, predictor fitted on {predictor.get('models_fitted')} models ({note})"
     )
