@@ -383,7 +383,7 @@ def diagnosis_lines(out: Path, s: dict[str, Any]) -> list[str]:
         "predicted success | measured success | time: diagnose / control |",
         "|---|---|---|---|---|---|---|",
     ]
-    rescored = False
+    rescored, asset = False, None
     for name in names:
         record = records[name]
         if record is None:
@@ -400,7 +400,8 @@ def diagnosis_lines(out: Path, s: dict[str, Any]) -> list[str]:
         rho = (r["planning"].get("repeatability") or {}).get("median_rho")
         predicted, mark = r.get("predicted_control_score"), ""
         if predicted is None:  # a report made before vp2 shipped a predictor for its env
-            predicted, _ = predicted_score(r, load_predictor())
+            asset = asset or load_predictor()
+            predicted, _ = predicted_score(r, asset)
             mark = "†" if predicted is not None else ""
             rescored = rescored or bool(mark)
         summary = _read(out / "runs" / name / "summary.json")
