@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 
+from tests import child_pids, wait_until_gone
 from tests.data.conftest import TINY
 from vp2.data import storage
 from vp2.data.collect import (
@@ -95,7 +96,8 @@ def test_corrupted_shard_is_named(tiny_dataset, tmp_path):
 
 
 def test_sigkill_half_way_then_resume(tmp_path):
-    """Kill a collection with SIGKILL after its first shard; re-running completes it exactly."""
+    """Kill a collection with SIGKILL after its first shard: its helper processes end with it,
+    and re-running completes it exactly."""
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "vp2.cli", "collect", "robodesk", "--streams", "robodesk/push_blue",
            "-n", "6", "--chunk-size", "2", "--image-size", "32", "--workers", "1", "--out", str(out)]
@@ -104,8 +106,11 @@ def test_sigkill_half_way_then_resume(tmp_path):
     while not storage.shard_path(out, 0).exists():
         assert proc.poll() is None and time.time() < deadline, "collection ended before its first shard"
         time.sleep(0.2)
+    helpers = child_pids(proc.pid)  # the progress queue's manager (and multiprocessing's tracker)
+    assert helpers
     proc.send_signal(signal.SIGKILL)
     proc.wait()
+    assert wait_until_gone(helpers, timeout=15) == [], "orphaned processes of the killed collection"
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["complete"] is False
     with pytest.raises(storage.DatasetError, match="incomplete"):

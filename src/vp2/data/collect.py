@@ -19,7 +19,6 @@ import dataclasses
 import functools
 import logging
 import math
-import multiprocessing as mp
 import threading
 import time
 import zlib
@@ -35,7 +34,7 @@ from vp2.data.policies import data_noise_sigma, make_data_env, make_policy, stre
 from vp2.envs.base import Env
 from vp2.envs.cache import EnvCache
 from vp2.envs.robodesk import ACTION_REPEAT
-from vp2.utils.executors import Executor, LocalExecutor
+from vp2.utils.executors import Executor, LocalExecutor, spawn_manager
 from vp2.utils.io import remove_stale_temporaries, write_json_atomic
 
 #: Trajectories per data stream of the default datasets (``vp2 collect <env>``): small enough
@@ -253,7 +252,7 @@ class ChunkProgress:
         if not enabled:
             yield None
             return
-        with mp.get_context("spawn").Manager() as manager:
+        with spawn_manager() as manager:
             queue = manager.Queue()
 
             def drain() -> None:

@@ -19,7 +19,7 @@ backends give identical results. See docs/scale-out.md.
 from __future__ import annotations
 
 from vp2.utils.executors.base import EXECUTORS, Executor, LiveQueue, WorkerLost
-from vp2.utils.executors.local import LocalExecutor, default_workers, spawn_pool
+from vp2.utils.executors.local import LocalExecutor, default_workers, spawn_manager, spawn_pool
 from vp2.utils.executors.ray_actors import RayExecutor
 
 
@@ -52,5 +52,6 @@ __all__ = [
     "WorkerLost",
     "default_workers",
     "make_executor",
+    "spawn_manager",
     "spawn_pool",
 ]

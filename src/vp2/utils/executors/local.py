@@ -2,7 +2,11 @@
 
 Every item's result must depend only on the item (its seed), never on which worker ran it;
 results stream back to the calling process, which alone writes output files.
-:func:`spawn_pool` is the one place the package starts a process pool.
+:func:`spawn_pool` is the one place the package starts a process pool, and
+:func:`spawn_manager` the one place it starts a ``multiprocessing`` manager. Every process
+either of them starts ends soon after its parent does, however the parent ended
+(:func:`watch_parent`): a run killed by SIGKILL or the OOM killer leaves no orphaned workers
+holding their models' memory.
 """
 
 from __future__ import annotations
@@ -10,9 +14,13 @@ from __future__ import annotations
 import collections
 import multiprocessing as mp
 import os
+import sys
+import threading
+import time
 from collections.abc import Callable, Hashable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.managers import SyncManager
 from typing import Any, TypeVar
 
 from vp2.utils.executors.base import Executor, WorkerLost, check_on_lost
@@ -26,17 +34,57 @@ def default_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
 
 
+#: Seconds between a child's checks that its parent is still alive.
+PARENT_CHECK_INTERVAL = 1.0
+
+
+def watch_parent(parent_pid: int, interval: float = PARENT_CHECK_INTERVAL) -> None:
+    """Ends this process within ``interval`` seconds of ``parent_pid`` ceasing to be its parent.
+
+    A daemon thread compares ``os.getppid()`` with ``parent_pid`` (an orphan is re-parented,
+    so the two differ once the parent is gone, also when it died before this call). Pool
+    workers block forever on their task queue when their parent is killed, since they hold
+    the queue's writing end themselves; this is what ends them.
+    """
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(interval)
+        print(f"vp2: parent process {parent_pid} is gone; process {os.getpid()} exits",
+              file=sys.stderr, flush=True)  # fmt: skip
+        os._exit(1)
+
+    threading.Thread(target=watch, name="vp2-watch-parent", daemon=True).start()
+
+
+def _init_child(
+    parent_pid: int, initializer: Callable[..., Any] | None, initargs: tuple[Any, ...]
+) -> None:
+    watch_parent(parent_pid)
+    if initializer is not None:
+        initializer(*initargs)
+
+
 def spawn_pool(
     workers: int, initializer: Callable[..., Any] | None = None, initargs: tuple[Any, ...] = ()
 ) -> ProcessPoolExecutor:
     """A pool of ``workers`` ``spawn``-ed processes (fork is unsafe once a GL context or torch
-    threads exist), each set up by ``initializer(*initargs)``."""
+    threads exist), each set up by ``initializer(*initargs)`` and ended when this process
+    ends (:func:`watch_parent`)."""
     return ProcessPoolExecutor(
         max_workers=workers,
         mp_context=mp.get_context("spawn"),
-        initializer=initializer,
-        initargs=initargs,
+        initializer=_init_child,
+        initargs=(os.getpid(), initializer, initargs),
     )
+
+
+def spawn_manager() -> SyncManager:
+    """A started ``spawn``-ed :class:`~multiprocessing.managers.SyncManager` (use it as a
+    context manager to shut it down) that ends when this process ends (:func:`watch_parent`)."""
+    manager = SyncManager(ctx=mp.get_context("spawn"))
+    manager.start(_init_child, (os.getpid(), None, ()))
+    return manager
 
 
 def imap_unordered(
