@@ -260,6 +260,8 @@ def test_bad_settings_are_refused():
         DiagnoseConfig(model="repeat_last_frame", clips=1).validate()
     with pytest.raises(ValueError, match="env"):
         DiagnoseConfig(model="repeat_last_frame", env="kitchen").validate()
+    with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
+        DiagnoseConfig(model="repeat_last_frame", seed=-1).validate()
 
 
 def test_the_environment_comes_from_the_checkpoint():

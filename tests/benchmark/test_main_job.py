@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from tests.benchmark import tiny_suite_path
 from vp2.benchmark import main_job
 from vp2.benchmark.main_job import MainJobConfig, run_main_job
@@ -66,3 +68,10 @@ def test_the_model_agent_plans_each_environment_with_its_own_checkpoint(tmp_path
     assert record["model"]["spec"] == "vp2.benchmark.main_job:shipped_model"
     assert record["model"]["name"] == "svg_prime" and len(record["success_steps"]) == 3
     assert "| task | svg_prime |" in table
+
+
+def test_a_bad_setting_is_refused_before_anything_is_written(tmp_path):
+    config = MainJobConfig(out=str(tmp_path / "main"), seeds=(-1,), suite=str(tiny_suite_path()))
+    with pytest.raises(ValueError, match="seeds must be non-negative integers"):
+        run_main_job(config)
+    assert not (tmp_path / "main").exists()

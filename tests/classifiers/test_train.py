@@ -75,6 +75,8 @@ def test_cosine_schedule_decays_from_lr_to_zero_and_constant_stays():
     assert {learning_rate(constant, s) for s in (1, 50, 100)} == {1e-3}
     with pytest.raises(ValueError, match="lr_schedule must be one of constant, cosine"):
         ClassifierTrainConfig(lr_schedule="linear")
+    with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
+        ClassifierTrainConfig(seed=-1)
 
 
 def test_cosine_training_changes_the_result_and_still_learns():

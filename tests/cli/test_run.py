@@ -77,12 +77,17 @@ def test_run_flags_are_passed_through():
     assert config.stop_on_success
 
 
-def test_run_bad_input_is_a_clear_error(capsys):
+def test_run_bad_input_is_a_clear_error(capsys, tmp_path):
     assert cli.main(["run", "--out", "runs/x"]) == 2
     assert "--model is required" in capsys.readouterr().err
     assert cli.main(["run", "--out", "runs/x", "--model", "repeat_last_frame",
                      "--seeds", "1", "1"]) == 2
     assert "seeds must be distinct" in capsys.readouterr().err
+    # A negative seed is refused before any trial (it used to record every trial as an error).
+    assert cli.main(["run", "--out", str(tmp_path / "x"), "--model", "repeat_last_frame",
+                     "--seeds", "0", "-1"]) == 2
+    assert "seeds must be non-negative integers" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
     with pytest.raises(SystemExit):
         cli.main(["run", "--out", "runs/x", "--optimizer", "adam"])
 

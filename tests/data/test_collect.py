@@ -232,5 +232,7 @@ def test_a_split_that_leaves_a_stream_without_held_out_trajectories_is_refused()
     CollectionConfig(env="robodesk", trajectories_per_stream=20, streams=two, valid_every=11).validate()
     CollectionConfig(env="robodesk", trajectories_per_stream=20, streams=two, valid_every=0).validate()
     CollectionConfig(env="robodesk", trajectories_per_stream=20).validate()  # 7 streams, 10
+    with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
+        CollectionConfig(env="robodesk", trajectories_per_stream=20, seed=-1).validate()
     with pytest.raises(ValueError, match="valid_every must be >= 0"):
         CollectionConfig(env="robodesk", trajectories_per_stream=20, valid_every=-1).validate()

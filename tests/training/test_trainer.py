@@ -280,3 +280,5 @@ def test_time_budget_larger_than_the_steps_need(dataset, tmp_path, step_clock):
     assert finished["stopped_by"] == "steps"
     with pytest.raises(ValueError, match="max_minutes must be > 0"):
         _config(dataset, tmp_path / "x", max_minutes=0)
+    with pytest.raises(ValueError, match="seed must be a non-negative integer, got -2"):
+        _config(dataset, tmp_path / "x", seed=-2)

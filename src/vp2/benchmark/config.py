@@ -172,6 +172,11 @@ class RunConfig:
             raise ValueError(f"cost must be one of {COST_MODES}, got {self.cost!r}")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds must be distinct and non-empty, got {self.seeds}")
+        if any(seed < 0 for seed in self.seeds):
+            raise ValueError(
+                f"seeds must be non-negative integers (a trial's seed derives from it), "
+                f"got {self.seeds}"
+            )
         if self.num_steps < 2:
             raise ValueError(f"num_steps must be >= 2, got {self.num_steps}")
         if self.num_instances is not None and self.num_instances < 1:

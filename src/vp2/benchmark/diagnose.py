@@ -143,6 +143,8 @@ class DiagnoseConfig:
             raise ValueError(f"clips must be 0 (skip) or >= 2 (shuffling needs two), got {self.clips}")
         if self.sampling_seeds < 1 or self.instances_per_task < 0 or self.num_samples < 2:
             raise ValueError("sampling_seeds must be >= 1, instances_per_task >= 0, num_samples >= 2")
+        if self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
 
 
 # --------------------------------------------------------------------------- inputs

@@ -246,6 +246,9 @@ def run_main_job(
     ``after_run`` is passed to every :func:`~vp2.benchmark.runner.run_benchmark` (``vp2 main``
     passes :func:`vp2.report.page.write_run_report`: a ``report.html`` per run directory).
     """
+    run_configs = _run_configs(config)
+    for run_config in run_configs.values():  # every setting checked before anything is written
+        run_config.validate()
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
     if gallery:
@@ -254,7 +257,7 @@ def run_main_job(
         render_gallery(out)
     results: dict[str, RunResult] = {}
     timings: dict[str, float] = {}
-    for name, run_config in _run_configs(config).items():
+    for name, run_config in run_configs.items():
         print(f"== {name}: {run_config.out}", flush=True)
         t0 = time.perf_counter()
         results[name] = run_benchmark(run_config, after_run=after_run)

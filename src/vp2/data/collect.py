@@ -83,6 +83,8 @@ class CollectionConfig:
             raise ValueError(f"trajectories per stream must be > 0, got {self.trajectories_per_stream}")
         if self.image_size <= 0 or self.horizon <= 0 or self.chunk_size <= 0:
             raise ValueError("image_size, horizon and chunk_size must be positive")
+        if self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
         known = stream_names(self.env)
         for s in self.resolved_streams():
             if s not in known:

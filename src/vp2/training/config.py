@@ -120,6 +120,8 @@ class TrainConfig:
             raise ValueError(f"max_minutes must be > 0 (or None), got {self.max_minutes}")
         if self.perceptual_weight < 0:
             raise ValueError(f"perceptual_weight must be >= 0, got {self.perceptual_weight}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
