@@ -269,6 +269,9 @@ def test_fill_rewrites_the_measured_sections_and_leaves_the_checkpoint(capsys, t
     assert (zoo / "t" / CHECKPOINT_FILE).read_bytes() == before  # the checkpoint untouched
     code, _, err = _vp2(capsys, "zoo", "fill", "t", "--zoo", str(zoo))
     assert code == 2 and "give --control RUN_DIR... and/or --metrics FILE" in err
+    # A misspelt name is named first, whatever the runs hold.
+    code, _, err = _vp2(capsys, "zoo", "fill", "tt", "--control", str(tmp_path), "--zoo", str(zoo))
+    assert code == 2 and "no model 'tt' in the zoo" in err and "known: t;" in err
     (zoo / "t" / CHECKPOINT_FILE).write_bytes(before + b"x")  # changed after the card
     code, _, err = _vp2(capsys, "zoo", "fill", "t", "--metrics", str(metrics), "--zoo", str(zoo))
     assert code == 2 and "does not match its card" in err

@@ -81,10 +81,12 @@ def run_from_args(args: argparse.Namespace) -> int:
 
 
 def _fill(args: argparse.Namespace) -> None:
+    from vp2.models.zoo import get_card
     from vp2.models.zoo_entries import fill_card
 
     if args.control is None and args.metrics is None:
         raise ValueError("vp2 zoo fill: give --control RUN_DIR... and/or --metrics FILE")
+    get_card(args.name, args.zoo, verify=False)  # an unknown name before reading any run
     sections = _measured_from_files({}, args.control, args.metrics)
     if args.note:
         for row in (sections.get("control") or {}).values():
