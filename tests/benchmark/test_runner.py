@@ -108,6 +108,19 @@ def test_a_run_that_stopped_before_any_trial_does_not_block_its_directory(tmp_pa
         RunDir.prepare(cfg)
 
 
+def test_a_directory_of_other_files_is_not_taken_for_a_run(tmp_path):
+    cfg = _config(tmp_path, "notes")
+    Path(cfg.out).mkdir(parents=True)
+    (Path(cfg.out) / "notes.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match="is not empty and is not a vp2 run directory"):
+        RunDir.prepare(cfg)
+    with pytest.raises(FileExistsError, match="not a vp2 run directory"):  # resume or not
+        RunDir.prepare(replace(cfg, resume=True))
+    assert sorted(p.name for p in Path(cfg.out).iterdir()) == ["notes.txt"]
+    Path(_config(tmp_path, "empty").out).mkdir(parents=True)  # an empty one is fine
+    RunDir.prepare(_config(tmp_path, "empty"))
+
+
 def test_resume_after_sigkill_runs_every_trial_exactly_once(reference, tmp_path):
     cfg = _config(tmp_path, "killed", seeds=(0, 1, 2), save_predictions=True)
     trials = Path(cfg.out) / "trials.jsonl"

@@ -236,3 +236,12 @@ def test_a_split_that_leaves_a_stream_without_held_out_trajectories_is_refused()
         CollectionConfig(env="robodesk", trajectories_per_stream=20, seed=-1).validate()
     with pytest.raises(ValueError, match="valid_every must be >= 0"):
         CollectionConfig(env="robodesk", trajectories_per_stream=20, valid_every=-1).validate()
+
+
+def test_zero_trajectories_is_an_error_not_the_default(tmp_path, capsys):
+    from vp2 import cli
+
+    # `-n 0` once fell back to the default count and collected 100 trajectories.
+    assert cli.main(["collect", "tabletop", "-n", "0", "--out", str(tmp_path / "d")]) == 2
+    assert "trajectories per stream must be > 0, got 0" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()

@@ -198,11 +198,17 @@ class RunDir:
         ``config.yaml``.
 
         Raises:
-            FileExistsError: the directory holds a run and ``config.resume`` is off.
+            FileExistsError: the directory holds a run and ``config.resume`` is off, or it
+                holds other files.
             ValueError: resuming with different protocol settings.
         """
         run = cls(config.out)
         existing = run.config_file.exists() or run.trials_file.exists()
+        if not existing and run.path.is_dir() and any(run.path.iterdir()):
+            raise FileExistsError(
+                f"{run.path} exists, is not empty and is not a vp2 run directory (no "
+                f"{run.config_file.name}); choose another --out directory"
+            )
         if existing and not config.resume:
             done = len(run.trials()) if run.trials_file.exists() else 0
             if done:

@@ -179,7 +179,8 @@ def run_benchmark(
     Raises:
         ValueError: an invalid config, a model spec that cannot be resolved, or a resume with
             different protocol settings.
-        FileExistsError: the output directory holds a run and ``resume`` is off.
+        FileExistsError: the output directory holds a run and ``resume`` is off, or files
+            that are not a run.
         RuntimeError: the model could not be built in a worker (nothing can run).
         ModelFailure: the model does not fit the run (action size; gradients for
             ``cem_gd``/``lbfgs``), or its first trials failed at the model boundary with the

@@ -52,7 +52,7 @@ FLAGS: dict[str, Flag | None] = {
 def run_from_args(args: argparse.Namespace) -> int:
     from vp2.data.collect import collect
 
-    n = args.num_trajectories or DEFAULT_TRAJECTORIES[args.env]
+    n = DEFAULT_TRAJECTORIES[args.env] if args.num_trajectories is None else args.num_trajectories
     config = build(CollectionConfig, args, FLAGS, trajectories_per_stream=n)
     out = args.out or f"data/{args.env}-{n}x-" + ("states" if args.states_only else f"{args.image_size}px")
     with make_executor_from_args(args) as executor:
