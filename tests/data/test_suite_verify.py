@@ -1,4 +1,5 @@
-"""``vp2 tasks verify``: a suite made on this machine verifies; any changed bit is named."""
+"""``vp2 tasks verify``: a suite made on this machine verifies; any changed bit is named. ``vp2 tasks
+generate`` checks its arguments first."""
 
 from __future__ import annotations
 
@@ -74,3 +75,17 @@ def test_the_command_exits_1_on_a_mismatch(local_suite, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "MISMATCH tabletop/push_sphere#0: replay: goal_state differs" in out
     assert "1 instance(s) differ on this machine" in out
+
+
+def test_generate_checks_its_arguments_before_generating(tmp_path, capsys):
+    out = tmp_path / "new" / "dir" / "suite.npz"
+    assert main(["tasks", "generate", "--tasks", "robodesk/push_rd", "--out", str(out)]) == 2
+    assert "unknown task categories robodesk/push_rd" in capsys.readouterr().err
+    # --count 0 once meant "the SPEC's counts": 310 instances.
+    assert main(["tasks", "generate", "--count", "0", "--out", str(out)]) == 2
+    assert "--count must be >= 1, got 0" in capsys.readouterr().err
+    assert not out.parent.exists()
+    assert main(["tasks", "generate", "--tasks", "robodesk/push_red", "--count", "1",
+                 "--workers", "1", "--out", str(out)]) == 0  # its folder is made first
+    suite = TaskSuite.load(out)
+    assert suite.tasks == ["robodesk/push_red"] and len(suite.for_task("robodesk/push_red")) == 1

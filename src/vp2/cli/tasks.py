@@ -20,14 +20,23 @@ def run_from_args(args: argparse.Namespace) -> int:
 
     if args.tasks_command == "generate":
         counts = dict(suite_lib.SUITE_COUNTS)
+        unknown = [t for t in args.tasks or () if t not in counts]
+        if unknown:
+            raise ValueError(f"unknown task categories {', '.join(unknown)}; the suite's are "
+                             f"{', '.join(counts)}")
         if args.tasks:
             counts = {t: counts[t] for t in args.tasks}
-        if args.count:
+        if args.count is not None:
+            if args.count < 1:
+                raise ValueError(f"--count must be >= 1, got {args.count}")
             counts = dict.fromkeys(counts, args.count)
+        if args.seed < 0:
+            raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)  # a bad --out fails before generating
         with make_executor_from_args(args) as executor:
             suite = suite_lib.generate_suite(counts, seed=args.seed, workers=args.workers,
                                              executor=executor)
-        out = Path(args.out)
         suite.save(out)
         print(f"task suite: {out} ({len(suite)} instances)")
         return 0
