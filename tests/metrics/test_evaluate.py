@@ -212,6 +212,12 @@ def test_missing_weights_skip_or_fail(data, tmp_path, no_default_weights):
 def test_model_must_fit_the_dataset(data):
     with pytest.raises(ValueError, match="predicts 64px frames but the dataset's are 32x32"):
         evaluate_model(SPEC, data, fvd=False, lpips_nets=(), device="cpu", progress=False)
+    from vp2.models.baselines import RepeatLastFrame
+
+    other_env = RepeatLastFrame(action_dim=ClipDataset(data, split="valid").action_dim + 1,
+                                image_size=32)  # a model of the other environment's actions
+    with pytest.raises(ValueError, match=r"takes \d-D actions but the dataset's are \d-D"):
+        evaluate_model(other_env, data, fvd=False, lpips_nets=(), device="cpu", progress=False)
     with pytest.raises(ValueError, match="unknown LPIPS network 'squeeze'"):
         evaluate_model(SPEC, data, lpips_nets=("squeeze",), device="cpu", progress=False)
 

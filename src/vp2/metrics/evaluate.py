@@ -92,6 +92,12 @@ def _build_model(
             f"are {height}x{width}; evaluate on a dataset of its resolution "
             "(or pass model_args={'image_size': ...} to models that take it)"
         )
+    if model.action_dim != dataset.action_dim:
+        raise ValueError(
+            f"model {identity['name']} takes {model.action_dim}-D actions but the dataset's are "
+            f"{dataset.action_dim}-D; evaluate it on a dataset of the environment it was "
+            "trained for (a checkpoint's card or config names it)"
+        )
     if (model.num_context, model.num_future) != (dataset.context, dataset.future):
         raise ValueError(
             f"model {identity['name']} uses {model.num_context} context + {model.num_future} "
