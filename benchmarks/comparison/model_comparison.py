@@ -445,8 +445,10 @@ def diagnose_stage(s: Settings, name: str, spec: str, stage_log: StageLog) -> Pa
     if done_record(path, settings) is not None:
         stage_log.add("diagnose", name, "done earlier")
         return path
-    report = diagnose_model(config)
+    partial = path.with_name(f"{path.stem}.partial.json")  # a stopped diagnosis goes on from it
+    report = diagnose_model(config, partial=partial)
     write_json_atomic(path, json_safe({"settings": settings, "report": report}))
+    partial.unlink(missing_ok=True)
     stage_log.add(
         "diagnose", name, "ran", predicted=report.get("predicted_control_score"),
         seconds=report["timing"]["total_s"],

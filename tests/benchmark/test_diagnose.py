@@ -42,6 +42,7 @@ from vp2.benchmark.diagnose_measures import (
 )
 from vp2.data.suite import TaskSuite
 from vp2.planning.config import PlannerConfig
+from vp2.utils.io import json_safe
 
 HERE = "tests.benchmark.test_diagnose"
 #: Pixels a square moves per unit of action (the dataset's speed: size / 8).
@@ -112,10 +113,10 @@ def suite(tmp_path_factory) -> Path:
     return path
 
 
-def _diagnose(model: str, data: Path, suite: Path, **kwargs) -> dict:
+def _diagnose(model: str, data: Path, suite: Path, partial: Path | None = None, **kwargs) -> dict:
     settings = dict(env="tabletop", data=str(data), suite=str(suite), num_samples=16,
                     progress=False)
-    return diagnose_model(DiagnoseConfig(model=model, **{**settings, **kwargs}))
+    return diagnose_model(DiagnoseConfig(model=model, **{**settings, **kwargs}), partial=partial)
 
 
 def _status(report: dict) -> dict[str, str]:
@@ -418,3 +419,43 @@ def test_a_step_context_along_the_scripted_path():
     np.testing.assert_array_equal(mid["rest"], instance.actions[half:])
     assert not np.array_equal(mid["frames"], start["frames"])  # the hand has moved
 
+
+
+def test_a_stopped_diagnosis_goes_on_from_its_partial_file(data, suite, tmp_path, monkeypatch, caplog):
+    from vp2.benchmark import diagnose as diagnose_module
+
+    model = f"{HERE}:NoisyModel"  # sampling noise: the resumed parts must draw the same
+    whole = _diagnose(model, data, suite, clips=4, sampling_seeds=1)
+    partial = tmp_path / "d.partial.json"
+    again = _diagnose(model, data, suite, clips=4, sampling_seeds=1, partial=partial)
+    saved = json.loads(partial.read_text())
+    assert saved["conditioning"] is not None and len(saved["instances"]) == len(whole["planning"]["instances"])
+    # As if stopped after the conditioning and one instance.
+    first = next(iter(saved["instances"]))
+    saved["instances"] = {first: saved["instances"][first]}
+    partial.write_text(json.dumps(saved))
+    probed, conditioned = [], []
+    real_probe, real_conditioning = diagnose_module.probe_instance, diagnose_module.measure_conditioning
+    monkeypatch.setattr(diagnose_module, "probe_instance",
+                        lambda model, instance, *a, **k: probed.append(instance.key) or real_probe(model, instance, *a, **k))
+    monkeypatch.setattr(diagnose_module, "measure_conditioning",
+                        lambda *a, **k: conditioned.append(1) or real_conditioning(*a, **k))
+    resumed = _diagnose(model, data, suite, clips=4, sampling_seeds=1, partial=partial)
+    assert conditioned == [] and first not in probed
+    assert len(probed) == len(whole["planning"]["instances"]) - 1
+    assert resumed["timing"]["resumed"] == {"conditioning": True, "instances": 1}
+
+    def measured(report: dict) -> dict:
+        """The report without its times (a resumed instance keeps its first run's)."""
+        kept = json.loads(json.dumps(json_safe({k: v for k, v in report.items()
+                                                if k not in ("timing", "created")})))
+        for row in kept["planning"]["instances"]:
+            assert row.pop("seconds") >= 0 and row.pop("oracle_seconds") >= 0
+        return kept
+
+    assert measured(resumed) == measured(whole) == measured(again)
+    # Other settings: the file is not used, and is replaced.
+    with caplog.at_level(logging.WARNING):
+        other = _diagnose(model, data, suite, clips=4, sampling_seeds=1, seed=1, partial=partial)
+    assert "holds a diagnosis of other settings" in caplog.text
+    assert "resumed" not in other["timing"] and json.loads(partial.read_text())["key"]["settings"]["seed"] == 1

@@ -69,6 +69,8 @@ def test_prints_a_verdict_per_measure_and_writes_the_report(data, tmp_path, caps
     )
     assert printed[7] == f"predicted control score: 0% success ({TABLETOP_PREDICTOR})"
     assert printed[-1] == f"wrote {out}"
+    # The measurements waited in report.partial.json while it ran; the report replaces them.
+    assert sorted(p.name for p in out.parent.iterdir() if "report" in p.name) == ["report.json"]
     report = json.loads(out.read_text())
     assert report["verdicts"]["action_conditioning"]["status"] == "blind"
     assert report["action_conditioning"]["clips"] == 8

@@ -37,13 +37,20 @@ gives these measurements, with ``predicted_control_score_reason`` saying what it
 :func:`precheck_model` is the cheap part alone (action conditioning on
 :data:`PRECHECK_CLIPS` clips), which :func:`vp2.benchmark.runner.run_benchmark` runs before the
 first trial of a learned model and which warns when its predictions ignore the actions.
+
+A diagnosis can keep what it has measured in a partial file (``partial=``; ``vp2 diagnose``
+keeps one beside its report): the conditioning measure and every probed instance are saved
+as they finish, and a re-run with the same settings and model skips them, so a diagnosis
+stopped after an hour (a slow diffusion model) loses at most one instance.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
+import json
 import logging
+import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -80,10 +87,12 @@ __all__ = [
     "REPORT_FILE",
     "DiagnoseConfig",
     "checkpoint_env",
+    "diagnose_env",
     "diagnose_model",
     "format_report",
     "measure_conditioning",
     "precheck_model",
+    "report_path",
     "require_dataset",
     "verdicts",
     "write_report",
@@ -96,6 +105,8 @@ REPORT_FILE = "diagnose.json"
 PRECHECK_CLIPS = 16
 #: The file of a run directory that holds its pre-check's measures (the report reads it).
 PRECHECK_FILE = "precheck.json"
+#: Format of a diagnosis's partial file (:class:`_Partial`).
+PARTIAL_FORMAT = "vp2-diagnose-partial/1"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -234,8 +245,10 @@ def measure_conditioning(
 # --------------------------------------------------------------------------- the diagnosis
 
 
-def diagnose_model(config: DiagnoseConfig) -> dict[str, Any]:
-    """Measures a model (module docstring) and returns the report; writes nothing.
+def diagnose_model(config: DiagnoseConfig, partial: str | Path | None = None) -> dict[str, Any]:
+    """Measures a model (module docstring) and returns the report. Writes nothing but
+    ``partial`` (if given): the measurements as they finish, reused by a diagnosis of the same
+    settings and model (the module docstring); the caller deletes it once the report is kept.
 
     Raises:
         ValueError: an invalid config, a spec that cannot be resolved, or clips that do not fit
@@ -252,9 +265,7 @@ def diagnose_model(config: DiagnoseConfig) -> dict[str, Any]:
     config.validate()
     parsed = ModelSpec.parse(config.model)
     parsed.check()
-    from_checkpoint = checkpoint_env(parsed) if config.env is None else None
-    env = config.env or from_checkpoint or "robodesk"
-    env_source = "flag" if config.env else "checkpoint" if from_checkpoint else "default"
+    env, env_source = diagnose_env(config)
     data = require_dataset(config.data, env) if config.clips and needs_frames(parsed) else None
     instances = []
     if config.instances_per_task:
@@ -265,6 +276,7 @@ def diagnose_model(config: DiagnoseConfig) -> dict[str, Any]:
         device=device,
     )
     identity = model_identity(parsed, config.model_args, model)
+    saved = _Partial(partial, _partial_key(config, parsed, env, identity))
     state_model = bool(getattr(model, "needs_simulator_state", False))
     simulator = None
     if instances and config.oracle_agreement and not state_model:
@@ -283,24 +295,32 @@ def diagnose_model(config: DiagnoseConfig) -> dict[str, Any]:
         elif state_model:
             conditioning = {"skipped": "the model predicts from the simulator state, not from "
                             "frames: held-out clips do not apply"}
+        elif saved.conditioning is not None:
+            conditioning = saved.conditioning
+            bar.update(calls)
         else:
             assert data is not None
             conditioning = measure_conditioning(
                 model, data, config.clips, config.sampling_seeds, config.seed, device,
                 on_call=lambda: bar.update(1),
             )
+            conditioning = saved.set_conditioning(conditioning)
         timing["conditioning_s"] = round(time.perf_counter() - t0, 2)
         t0 = time.perf_counter()
         rows = []
         for instance in instances:
             bar.set_postfix(instance=instance.key)
-            rows.append(
-                probe_instance(model, instance, config.num_samples, config.seed, device,
-                               simulator=simulator, cache=oracle_cache_dir())  # fmt: skip
-            )
+            row = saved.row(instance.key)
+            if row is None:
+                row = probe_instance(model, instance, config.num_samples, config.seed, device,
+                                     simulator=simulator, cache=oracle_cache_dir())  # fmt: skip
+                row = saved.add_row(instance.key, row)
+            rows.append(row)
             bar.update(1)
         timing["planning_s"] = round(time.perf_counter() - t0, 2)
         timing["oracle_s"] = round(sum(r["oracle_seconds"] for r in rows), 2)
+        if saved.resumed:
+            timing["resumed"] = saved.resumed
     finally:
         bar.close()
         for used in (model, simulator):
@@ -332,12 +352,101 @@ def write_report(path: str | Path, report: dict[str, Any]) -> Path:
     """Writes the report as JSON, atomically; a directory gets :data:`REPORT_FILE` in it."""
     from vp2.utils.io import json_safe, write_json_atomic
 
-    path = Path(path)
-    if path.is_dir() or not path.suffix:
-        path = path / REPORT_FILE
+    path = report_path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, json_safe(report))
     return path
+
+
+def report_path(path: str | Path) -> Path:
+    """The file :func:`write_report` writes for ``path`` (a directory gets :data:`REPORT_FILE`)."""
+    path = Path(path)
+    return path / REPORT_FILE if path.is_dir() or not path.suffix else path
+
+
+def diagnose_env(config: DiagnoseConfig) -> tuple[str, str]:
+    """The environment a diagnosis probes and where it came from: ``flag`` (``config.env``),
+    ``checkpoint`` (the environment a checkpoint was trained on) or ``default`` (robodesk)."""
+    from_checkpoint = checkpoint_env(config.model) if config.env is None else None
+    env = config.env or from_checkpoint or "robodesk"
+    return env, "flag" if config.env else "checkpoint" if from_checkpoint else "default"
+
+
+def _partial_key(
+    config: DiagnoseConfig, parsed: ModelSpec, env: str, identity: dict[str, Any]
+) -> dict[str, Any]:
+    """What a partial file's measurements depend on: the settings (not the device or the
+    progress bar), the environment, the model and, for a checkpoint, its file's size and time."""
+    from vp2 import __version__
+
+    settings = dataclasses.asdict(config)
+    for name in ("device", "progress"):
+        settings.pop(name)
+    key: dict[str, Any] = {"settings": settings, "env": env, "model": identity,
+                           "vp2_version": __version__}
+    if parsed.checkpoint is not None:
+        stat = os.stat(parsed.checkpoint.path)
+        key["checkpoint"] = {"size": stat.st_size, "mtime_ns": stat.st_mtime_ns}
+    return _as_json(key)
+
+
+def _as_json(obj: Any) -> Any:
+    """``obj`` as it reads back from a JSON file (so that measured and resumed values are the
+    same objects)."""
+    from vp2.utils.io import json_safe
+
+    return json.loads(json.dumps(json_safe(obj)))
+
+
+class _Partial:
+    """The measurements a diagnosis has finished, kept in a JSON file (``path``; ``None``:
+    nowhere) and reused by a diagnosis of the same ``key`` (:func:`_partial_key`)."""
+
+    def __init__(self, path: str | Path | None, key: dict[str, Any]) -> None:
+        self.path = None if path is None else Path(path)
+        self.data: dict[str, Any] = {"format": PARTIAL_FORMAT, "key": key,
+                                     "conditioning": None, "instances": {}}
+        self.resumed: dict[str, Any] = {}
+        if self.path is None or not self.path.is_file():
+            return
+        try:
+            saved = json.loads(self.path.read_text())
+        except (OSError, ValueError) as exc:
+            log.warning("ignoring the unreadable partial diagnosis %s (%s)", self.path, exc)
+            return
+        if not isinstance(saved, dict) or saved.get("format") != PARTIAL_FORMAT or saved.get("key") != key:
+            log.warning("%s holds a diagnosis of other settings, another model or another "
+                        "vp2 version; starting over (it is replaced)", self.path)
+            return
+        self.data = saved
+        self.resumed = {"conditioning": saved["conditioning"] is not None,
+                        "instances": len(saved["instances"])}
+        log.info("resuming the diagnosis in %s: %s", self.path, self.resumed)
+
+    @property
+    def conditioning(self) -> dict[str, Any] | None:
+        return self.data["conditioning"]
+
+    def row(self, key: str) -> dict[str, Any] | None:
+        return self.data["instances"].get(key)
+
+    def set_conditioning(self, result: dict[str, Any]) -> dict[str, Any]:
+        """Keeps ``result`` and returns it as it reads back from the file."""
+        self.data["conditioning"] = _as_json(result)
+        self._save()
+        return self.data["conditioning"]
+
+    def add_row(self, key: str, row: dict[str, Any]) -> dict[str, Any]:
+        """Keeps an instance's ``row`` and returns it as it reads back from the file."""
+        self.data["instances"][key] = _as_json(row)
+        self._save()
+        return self.data["instances"][key]
+
+    def _save(self) -> None:
+        from vp2.utils.io import json_safe, write_json_atomic
+
+        if self.path is not None:
+            write_json_atomic(self.path, json_safe(self.data))
 
 
 # --------------------------------------------------------------------------- the run's pre-check

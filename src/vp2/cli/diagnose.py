@@ -63,7 +63,9 @@ FLAGS: dict[str, Flag | None] = {
         metavar="FILE",
         default=None,
         cli_only=True,
-        help=f"report JSON (default: runs/diagnose/<model-slug>-<env>/{REPORT_FILE})",
+        help=f"report JSON (default: runs/diagnose/<model-slug>-<env>/{REPORT_FILE}); the "
+        "measurements of an unfinished diagnosis wait beside it in <name>.partial.json, and "
+        "re-running the same command goes on from them",
     ),
 }
 
@@ -81,12 +83,27 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 def run_from_args(args: argparse.Namespace) -> int:
     """Runs ``vp2 diagnose``: prints a line per measure and writes the report."""
-    from vp2.benchmark.diagnose import diagnose_model, format_report, write_report
+    from vp2.benchmark.diagnose import (
+        diagnose_env,
+        diagnose_model,
+        format_report,
+        report_path,
+        write_report,
+    )
 
     config = build(DiagnoseConfig, args, FLAGS)
     config.validate()
-    report = diagnose_model(config)
-    out = write_report(args.out or default_out(config.model, report["env"]), report)
+    out = report_path(args.out or default_out(config.model, diagnose_env(config)[0]))
+    partial = partial_path(out)
+    report = diagnose_model(config, partial=partial)
+    write_report(out, report)
+    partial.unlink(missing_ok=True)
     print("\n".join(format_report(report)))
     print(f"wrote {out}")
     return 0
+
+
+def partial_path(report: Path) -> Path:
+    """Where ``vp2 diagnose`` keeps the measurements of an unfinished diagnosis: beside its
+    report, ``<report stem>.partial.json`` (deleted once the report is written)."""
+    return report.with_name(f"{report.stem}.partial.json")
