@@ -5,6 +5,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from benchmarks.checks.orphans import alive
+
+__all__ = ["alive", "child_pids", "wait_until_gone"]
+
 
 def _stat(pid: int) -> list[str] | None:
     """Fields of ``/proc/PID/stat`` after the command name (state first), or None if gone."""
@@ -24,12 +28,6 @@ def child_pids(pid: int) -> list[int]:
             if fields is not None and fields[0] != "Z" and int(fields[1]) == pid:
                 found.append(int(entry.name))
     return sorted(found)
-
-
-def alive(pid: int) -> bool:
-    """``pid`` exists and is not a zombie (an orphan that exited, not yet reaped)."""
-    fields = _stat(pid)
-    return fields is not None and fields[0] != "Z"
 
 
 def wait_until_gone(pids: list[int], timeout: float) -> list[int]:
