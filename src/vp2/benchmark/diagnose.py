@@ -48,9 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import json
 import logging
-import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -66,6 +64,7 @@ from vp2.benchmark.diagnose_measures import (
     probe_instance,
     ratio_statistics,
 )
+from vp2.benchmark.diagnose_partial import PartialDiagnosis, partial_key
 from vp2.benchmark.diagnose_score import load_predictor, predicted_score
 from vp2.benchmark.diagnose_verdicts import (
     conditioning_verdict,
@@ -105,8 +104,6 @@ REPORT_FILE = "diagnose.json"
 PRECHECK_CLIPS = 16
 #: The file of a run directory that holds its pre-check's measures (the report reads it).
 PRECHECK_FILE = "precheck.json"
-#: Format of a diagnosis's partial file (:class:`_Partial`).
-PARTIAL_FORMAT = "vp2-diagnose-partial/1"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -276,7 +273,10 @@ def diagnose_model(config: DiagnoseConfig, partial: str | Path | None = None) ->
         device=device,
     )
     identity = model_identity(parsed, config.model_args, model)
-    saved = _Partial(partial, _partial_key(config, parsed, env, identity))
+    checkpoint = parsed.checkpoint.path if parsed.checkpoint is not None else None
+    saved = PartialDiagnosis(
+        partial, partial_key(dataclasses.asdict(config), env, identity, checkpoint)
+    )
     state_model = bool(getattr(model, "needs_simulator_state", False))
     simulator = None
     if instances and config.oracle_agreement and not state_model:
@@ -370,83 +370,6 @@ def diagnose_env(config: DiagnoseConfig) -> tuple[str, str]:
     from_checkpoint = checkpoint_env(config.model) if config.env is None else None
     env = config.env or from_checkpoint or "robodesk"
     return env, "flag" if config.env else "checkpoint" if from_checkpoint else "default"
-
-
-def _partial_key(
-    config: DiagnoseConfig, parsed: ModelSpec, env: str, identity: dict[str, Any]
-) -> dict[str, Any]:
-    """What a partial file's measurements depend on: the settings (not the device or the
-    progress bar), the environment, the model and, for a checkpoint, its file's size and time."""
-    from vp2 import __version__
-
-    settings = dataclasses.asdict(config)
-    for name in ("device", "progress"):
-        settings.pop(name)
-    key: dict[str, Any] = {"settings": settings, "env": env, "model": identity,
-                           "vp2_version": __version__}
-    if parsed.checkpoint is not None:
-        stat = os.stat(parsed.checkpoint.path)
-        key["checkpoint"] = {"size": stat.st_size, "mtime_ns": stat.st_mtime_ns}
-    return _as_json(key)
-
-
-def _as_json(obj: Any) -> Any:
-    """``obj`` as it reads back from a JSON file (so that measured and resumed values are the
-    same objects)."""
-    from vp2.utils.io import json_safe
-
-    return json.loads(json.dumps(json_safe(obj)))
-
-
-class _Partial:
-    """The measurements a diagnosis has finished, kept in a JSON file (``path``; ``None``:
-    nowhere) and reused by a diagnosis of the same ``key`` (:func:`_partial_key`)."""
-
-    def __init__(self, path: str | Path | None, key: dict[str, Any]) -> None:
-        self.path = None if path is None else Path(path)
-        self.data: dict[str, Any] = {"format": PARTIAL_FORMAT, "key": key,
-                                     "conditioning": None, "instances": {}}
-        self.resumed: dict[str, Any] = {}
-        if self.path is None or not self.path.is_file():
-            return
-        try:
-            saved = json.loads(self.path.read_text())
-        except (OSError, ValueError) as exc:
-            log.warning("ignoring the unreadable partial diagnosis %s (%s)", self.path, exc)
-            return
-        if not isinstance(saved, dict) or saved.get("format") != PARTIAL_FORMAT or saved.get("key") != key:
-            log.warning("%s holds a diagnosis of other settings, another model or another "
-                        "vp2 version; starting over (it is replaced)", self.path)
-            return
-        self.data = saved
-        self.resumed = {"conditioning": saved["conditioning"] is not None,
-                        "instances": len(saved["instances"])}
-        log.info("resuming the diagnosis in %s: %s", self.path, self.resumed)
-
-    @property
-    def conditioning(self) -> dict[str, Any] | None:
-        return self.data["conditioning"]
-
-    def row(self, key: str) -> dict[str, Any] | None:
-        return self.data["instances"].get(key)
-
-    def set_conditioning(self, result: dict[str, Any]) -> dict[str, Any]:
-        """Keeps ``result`` and returns it as it reads back from the file."""
-        self.data["conditioning"] = _as_json(result)
-        self._save()
-        return self.data["conditioning"]
-
-    def add_row(self, key: str, row: dict[str, Any]) -> dict[str, Any]:
-        """Keeps an instance's ``row`` and returns it as it reads back from the file."""
-        self.data["instances"][key] = _as_json(row)
-        self._save()
-        return self.data["instances"][key]
-
-    def _save(self) -> None:
-        from vp2.utils.io import json_safe, write_json_atomic
-
-        if self.path is not None:
-            write_json_atomic(self.path, json_safe(self.data))
 
 
 # --------------------------------------------------------------------------- the run's pre-check
