@@ -72,6 +72,6 @@ def test_the_model_agent_plans_each_environment_with_its_own_checkpoint(tmp_path
 
 def test_a_bad_setting_is_refused_before_anything_is_written(tmp_path):
     config = MainJobConfig(out=str(tmp_path / "main"), seeds=(-1,), suite=str(tiny_suite_path()))
-    with pytest.raises(ValueError, match="seeds must be non-negative integers"):
+    with pytest.raises(ValueError, match="every seed must be a non-negative integer, got -1"):
         run_main_job(config)
     assert not (tmp_path / "main").exists()

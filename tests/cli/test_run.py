@@ -86,7 +86,7 @@ def test_run_bad_input_is_a_clear_error(capsys, tmp_path):
     # A negative seed is refused before any trial (it used to record every trial as an error).
     assert cli.main(["run", "--out", str(tmp_path / "x"), "--model", "repeat_last_frame",
                      "--seeds", "0", "-1"]) == 2
-    assert "seeds must be non-negative integers" in capsys.readouterr().err
+    assert "every seed must be a non-negative integer, got -1" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
     with pytest.raises(SystemExit):
         cli.main(["run", "--out", "runs/x", "--optimizer", "adam"])

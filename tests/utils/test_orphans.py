@@ -7,13 +7,10 @@ from __future__ import annotations
 import os
 import signal
 
-import pytest
 from benchmarks.checks.orphans import sleep_then_pid, start_parent
 
 from tests import alive, child_pids, wait_until_gone
 from vp2.utils.executors.local import PARENT_CHECK_INTERVAL
-
-pytestmark = pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads /proc (Linux)")
 
 
 def test_pool_workers_and_manager_end_when_their_parent_is_killed():

@@ -21,6 +21,7 @@ from vp2 import spec
 from vp2.envs import ENV_TASKS, split_name
 from vp2.planning.config import PlannerConfig
 from vp2.utils.executors.base import EXECUTORS
+from vp2.utils.seeds import check_seed
 
 AGENTS: tuple[str, ...] = ("planning", "random")
 #: Fields of :class:`RunConfig` that change what a trial does (``planner``: every field of it).
@@ -172,11 +173,8 @@ class RunConfig:
             raise ValueError(f"cost must be one of {COST_MODES}, got {self.cost!r}")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds must be distinct and non-empty, got {self.seeds}")
-        if any(seed < 0 for seed in self.seeds):
-            raise ValueError(
-                f"seeds must be non-negative integers (a trial's seed derives from it), "
-                f"got {self.seeds}"
-            )
+        for seed in self.seeds:
+            check_seed(seed, "every seed")
         if self.num_steps < 2:
             raise ValueError(f"num_steps must be >= 2, got {self.num_steps}")
         if self.num_instances is not None and self.num_instances < 1:

@@ -76,6 +76,7 @@ from vp2.benchmark.model_spec import BUILTIN_MODELS, ModelSpec, model_identity, 
 from vp2.data.datasets import default_dataset
 from vp2.data.storage import MANIFEST
 from vp2.envs import ENV_TASKS, env_class
+from vp2.utils.seeds import check_seed
 
 log = logging.getLogger(__name__)
 
@@ -151,8 +152,7 @@ class DiagnoseConfig:
             raise ValueError(f"clips must be 0 (skip) or >= 2 (shuffling needs two), got {self.clips}")
         if self.sampling_seeds < 1 or self.instances_per_task < 0 or self.num_samples < 2:
             raise ValueError("sampling_seeds must be >= 1, instances_per_task >= 0, num_samples >= 2")
-        if self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
+        check_seed(self.seed)
 
 
 # --------------------------------------------------------------------------- inputs

@@ -26,6 +26,7 @@ from vp2.classifiers.data import LABELS, FrameSet, load_frames, to_tensor
 from vp2.classifiers.networks import build_classifier, multiply_adds
 from vp2.classifiers.registry import short_task
 from vp2.data.storage import load_manifest
+from vp2.utils.seeds import check_seed
 from vp2.utils.tensors import images_to_float
 
 log = logging.getLogger(__name__)
@@ -78,8 +79,7 @@ class ClassifierTrainConfig:
     label: str = "success"
 
     def __post_init__(self) -> None:
-        if self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
+        check_seed(self.seed)
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(
                 f"lr_schedule must be one of {', '.join(LR_SCHEDULES)}, got {self.lr_schedule!r}"

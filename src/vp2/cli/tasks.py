@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 from vp2.cli._common import add_executor_flags, make_executor_from_args
+from vp2.utils.seeds import check_seed
 
 log = logging.getLogger(__name__)
 
@@ -30,8 +31,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             if args.count < 1:
                 raise ValueError(f"--count must be >= 1, got {args.count}")
             counts = dict.fromkeys(counts, args.count)
-        if args.seed < 0:
-            raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
+        check_seed(args.seed, "--seed")
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)  # a bad --out fails before generating
         with make_executor_from_args(args) as executor:

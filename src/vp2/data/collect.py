@@ -36,6 +36,7 @@ from vp2.envs.cache import EnvCache
 from vp2.envs.robodesk import ACTION_REPEAT
 from vp2.utils.executors import Executor, LocalExecutor, spawn_manager
 from vp2.utils.io import remove_stale_temporaries, write_json_atomic
+from vp2.utils.seeds import check_seed
 
 #: Trajectories per data stream of the default datasets (``vp2 collect <env>``): small enough
 #: to generate in CI time. Paper scale: robodesk 5,000 per task, tabletop 50,000.
@@ -83,8 +84,7 @@ class CollectionConfig:
             raise ValueError(f"trajectories per stream must be > 0, got {self.trajectories_per_stream}")
         if self.image_size <= 0 or self.horizon <= 0 or self.chunk_size <= 0:
             raise ValueError("image_size, horizon and chunk_size must be positive")
-        if self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
+        check_seed(self.seed)
         known = stream_names(self.env)
         for s in self.resolved_streams():
             if s not in known:

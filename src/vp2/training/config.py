@@ -9,6 +9,8 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from vp2.utils.seeds import check_seed
+
 #: Fields that may change when resuming: how long and how the run is observed, not what it
 #: computes.
 RESUMABLE_CHANGES = frozenset(
@@ -120,8 +122,7 @@ class TrainConfig:
             raise ValueError(f"max_minutes must be > 0 (or None), got {self.max_minutes}")
         if self.perceptual_weight < 0:
             raise ValueError(f"perceptual_weight must be >= 0, got {self.perceptual_weight}")
-        if self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
+        check_seed(self.seed)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
