@@ -273,6 +273,26 @@ def test_the_environment_comes_from_the_checkpoint():
     assert checkpoint_env("repeat_last_frame") is None
 
 
+def test_a_checkpoint_is_read_once_for_its_environment(tmp_path, monkeypatch):
+    import vp2.models.checkpoint as checkpoint_module
+
+    reads = []
+
+    def read(path):
+        reads.append(path)
+        return {"dataset": {"config": {"env": "tabletop"}}}
+
+    monkeypatch.setattr(checkpoint_module, "read_model_checkpoint", read)
+    path = tmp_path / "model.pt"
+    path.write_bytes(b"one")
+    assert checkpoint_env(f"svg_prime:{path}") == "tabletop"
+    assert checkpoint_env(f"svg_prime:{path}") == "tabletop"
+    assert len(reads) == 1  # vp2 diagnose asks twice: its report's path, then its run
+    path.write_bytes(b"another")  # a new version of the file is read again
+    assert checkpoint_env(f"svg_prime:{path}") == "tabletop"
+    assert len(reads) == 2
+
+
 # --------------------------------------------------------------------------- vp2 run's pre-check
 
 

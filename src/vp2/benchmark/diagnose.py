@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import functools
 import logging
 import time
 from collections.abc import Sequence
@@ -164,10 +165,23 @@ def checkpoint_env(model: str | ModelSpec) -> str | None:
     parsed = model if isinstance(model, ModelSpec) else ModelSpec.parse(model)
     if parsed.checkpoint is None:
         return None
+    path = Path(parsed.checkpoint.path)
+    try:
+        stat = path.stat()
+    except OSError:
+        return None  # building the model reports the problem
+    return _checkpoint_env(str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=8)
+def _checkpoint_env(path: str, mtime_ns: int, size: int) -> str | None:
+    """:func:`checkpoint_env` of one version of a file (its path, mtime and size are the key):
+    a diagnosis asks twice (its report path, then its run), and a checkpoint is read once."""
     from vp2.models.checkpoint import read_model_checkpoint
 
+    del mtime_ns, size  # the cache key only
     try:
-        payload = read_model_checkpoint(parsed.checkpoint.path)
+        payload = read_model_checkpoint(path)
     except (OSError, ValueError):
         return None  # building the model reports the problem
     env = ((payload.get("dataset") or {}).get("config") or {}).get("env")
