@@ -25,9 +25,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from scipy.stats import spearmanr
-
 from vp2.benchmark import diagnose_score as ds
+from vp2.benchmark.diagnose_measures import spearman
 
 #: The candidates: all measures, or one alone (the others held at 0, so they carry no weight).
 CANDIDATES: dict[str, tuple[str, ...]] = {"all six": ds.FEATURES, **{f: (f,) for f in ds.FEATURES}}
@@ -69,17 +68,23 @@ def select_then_predict(rows: Sequence[Mapping[str, float]], success: Sequence[f
     return predictions, chosen
 
 
+def _rho(predicted: Sequence[float], success: Sequence[float]) -> str:
+    """Spearman's ρ as the validation table prints it (the same function); "–" if undefined."""
+    rho = spearman(predicted, success)
+    return "–" if rho is None else f"{rho:+.2f}"
+
+
 def study(models: Sequence[Mapping[str, Any]]) -> list[str]:
     """The report's lines for one environment's models (``features``, ``success``, ``trials``)."""
     rows = [m["features"] for m in models]
     success, trials = [m["success"] for m in models], [m["trials"] for m in models]
     predictions, chosen = select_then_predict(rows, success, trials)
-    lines = [f"choice inside each fold: held-out Spearman {spearmanr(predictions, success)[0]:+.2f}"
+    lines = [f"choice inside each fold: held-out Spearman {_rho(predictions, success)}"
              f" over {len(models)} models", "", "| candidate | held-out Spearman | deviance |",
              "|---|---|---|"]  # fmt: skip
     for name, keep in CANDIDATES.items():
         p = held_out(rows, success, trials, keep)
-        lines.append(f"| {name} | {spearmanr(p, success)[0]:+.2f} | "
+        lines.append(f"| {name} | {_rho(p, success)} | "
                      f"{ds.deviance(p, success, trials):.1f} |")
     lines += ["", "| model | success | held out | candidate chosen without it |", "|---|---|---|---|"]
     for m, p, c in zip(models, predictions, chosen, strict=True):
