@@ -19,12 +19,12 @@ candidate chosen for each model. About half a CPU-minute for twelve models.
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from benchmarks import common
 from vp2.benchmark import diagnose_score as ds
 from vp2.benchmark.diagnose_measures import spearman
 
@@ -93,7 +93,7 @@ def study(models: Sequence[Mapping[str, Any]]) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = common.argument_parser(__spec__.name, __doc__)
     parser.add_argument("--validation", type=Path, default=Path("results/diagnose/validation.json"))
     args = parser.parse_args(argv)
     rows = json.loads(args.validation.read_text())["rows"]
