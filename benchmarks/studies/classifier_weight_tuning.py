@@ -101,6 +101,8 @@ def run_trial(task: str, index: int, weight: float, num_samples: int) -> dict:
         "success": bool(result.success),
         "first_success_step": steps[0] if steps else None,
         "seconds": round(time.perf_counter() - start, 1),
+        # the executed actions, for benchmarks.studies.block_trial_trace and mining
+        "actions": result.actions.tolist(),
     }
 
 
