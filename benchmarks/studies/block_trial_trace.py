@@ -17,8 +17,9 @@ scripted actions (after the same zero first action), and measures every frame:
 * the block's height, the hand's distance to the block, whether the other objects moved, and
   how many of the 64x64 frame's pixels show the block (those that change when it is taken
   out of the scene; the arm can hide it);
-* the frame's planning cost with the shipped cost (SPEC §6: ``w_pix`` × pixel SSE to the goal
-  + ``w_cls`` × −logit, the terms the planner sums over a plan's frames), and the logit.
+* the frame's planning cost (SPEC §6: ``w_pix`` × pixel SSE to the goal + ``w_cls`` × −logit,
+  the terms the planner sums over a plan's frames) and the logit, with the registered
+  classifier: the shipped one, or ``$VP2_CLASSIFIERS_DIR``'s for a trial planned with another.
 
 Each failed trial gets a verdict: *neighbour moved* (the block fell, or went as far as the
 scripted push takes it, but another object moved, which the success rule forbids); *false
