@@ -19,7 +19,8 @@ scripted actions (after the same zero first action), and measures every frame:
   out of the scene; the arm can hide it);
 * the frame's planning cost (SPEC §6: ``w_pix`` × pixel SSE to the goal + ``w_cls`` × −logit,
   the terms the planner sums over a plan's frames) and the logit, with the registered
-  classifier: the shipped one, or ``$VP2_CLASSIFIERS_DIR``'s for a trial planned with another.
+  classifier (the shipped one, or ``$VP2_CLASSIFIERS_DIR``'s for a trial planned with another)
+  at the weight the trial's record names.
 
 Each failed trial gets a verdict: *neighbour moved* (the block fell, or went as far as the
 scripted push takes it, but another object moved, which the success rule forbids); *false
@@ -159,6 +160,15 @@ def verdict(executed: list[dict[str, Any]], success_frame: dict[str, Any], solve
     return "short"
 
 
+def planned_weight(record: dict[str, Any]) -> float | None:
+    """The classifier weight the trial planned with, where its record says (a ``vp2 run``
+    record's agent, or ``classifier_weight_tuning``'s ``weight``)."""
+    if "weight" in record:
+        return float(record["weight"])
+    weight = (record.get("agent") or {}).get("classifier", {}).get("weight")
+    return None if weight is None else float(weight)
+
+
 def print_summary(s: dict[str, Any]) -> None:
     print(f"\n{s['task']}#{s['instance']}: trial {'solved' if s['success'] else 'failed'}; "
           f"scripted push first succeeds at step {s['scripted_success_step']}")  # fmt: skip
@@ -203,6 +213,8 @@ def main() -> None:
             parser.error(f"{inst.key}: the record's instance is not the shipped suite's")
         goal = frames_to_tensor(inst.goal_image, torch.device("cpu"))
         cost, kind = build_cost(record["task"], goal, "spec")
+        if (weight := planned_weight(record)) is not None:
+            cost.terms[1] = (weight, cost.terms[1][1])
         summary = summarise(inst, record, cost)
         print_summary(summary)
         out.append(summary)

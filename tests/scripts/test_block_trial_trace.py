@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from benchmarks.studies.block_trial_trace import summarise
+from benchmarks.studies.block_trial_trace import planned_weight, summarise
 
 from vp2.data.suite import TaskSuite
 from vp2.planning.agent import frames_to_tensor
@@ -51,3 +51,9 @@ def test_a_failed_spec_count_trial_is_a_false_optimum():
     best = s["executed"][s["best_cost_step"]]
     assert best["logit"] > max(r["logit"] for r in s["scripted"][: s["scripted_success_step"] + 1])
     assert "upright_block" in best["others_moved"]
+
+
+def test_the_trace_scores_at_the_weight_the_trial_planned_with():
+    assert planned_weight({"weight": 10.0}) == 10.0
+    assert planned_weight({"agent": {"classifier": {"weight": 100.0}}}) == 100.0
+    assert planned_weight({"agent": {"agent": "random"}}) is None
