@@ -64,7 +64,8 @@ from vp2.utils.io import write_json_atomic
 TRAIN_INSTANCES = range(10, 22)
 HELDOUT_INSTANCES = range(22, 30)
 STEPS = 15
-RECORDS = (Path("results/oracle/samples-50"), Path("results/oracle-runs/blocks-spec"))
+_RESULTS = Path(__file__).resolve().parents[2] / "results"
+RECORDS = (_RESULTS / "oracle" / "samples-50", _RESULTS / "oracle-runs" / "blocks-spec")
 
 
 def rollout(inst, actions: np.ndarray) -> dict[str, np.ndarray]:
