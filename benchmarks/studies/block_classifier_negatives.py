@@ -88,27 +88,32 @@ def rollout(inst, actions: np.ndarray) -> dict[str, np.ndarray]:
             "on_desk": np.array(on_desk)}  # fmt: skip
 
 
+def as_frameset(parts: list[dict[str, np.ndarray]], first_id: int) -> FrameSet:
+    """Rollouts (:func:`rollout`) as one progress-label :class:`FrameSet`, trajectory ids
+    counted from ``first_id`` (clear of the dataset's)."""
+    return FrameSet(
+        np.concatenate([r["images"] for r in parts]),
+        np.concatenate([r["positive"] for r in parts]),
+        np.concatenate([np.full(len(r["positive"]), first_id + i) for i, r in enumerate(parts)]),
+        np.concatenate([np.arange(len(r["positive"])) for r in parts]),
+        np.concatenate([progress_targets(r["positive"]) for r in parts]),
+        progress_threshold(),
+    )  # fmt: skip
+
+
 def exploration(task: str, instances, rollouts: int, seed: int) -> tuple[FrameSet, np.ndarray]:
     """Exploration rollouts from the instances' initial states, as a progress-label
     :class:`FrameSet`, and each frame's on-desk flag."""
     suite = TaskSuite.load()
     sampler = CorrelatedNoiseSampler()
     generator = torch.Generator().manual_seed(seed)
-    parts, on_desk = [], []
+    parts = []
     for index in instances:
         inst = suite.get(task, index)
         plans = sampler.sample(torch.zeros(STEPS - 1, 5), SIGMA["robodesk"], rollouts, generator)
         for plan in plans.double().numpy():
-            r = rollout(inst, np.concatenate([np.zeros((1, 5)), plan]))
-            parts.append((r, len(parts)))
-            on_desk.append(r["on_desk"])
-    images = np.concatenate([r["images"] for r, _ in parts])
-    labels = np.concatenate([r["positive"] for r, _ in parts])
-    targets = np.concatenate([progress_targets(r["positive"]) for r, _ in parts])
-    traj = np.concatenate([np.full(len(r["positive"]), 10_000 + i) for r, i in parts])
-    steps = np.concatenate([np.arange(len(r["positive"])) for r, _ in parts])
-    frames = FrameSet(images, labels, traj, steps, targets, progress_threshold())
-    return frames, np.concatenate(on_desk)
+            parts.append(rollout(inst, np.concatenate([np.zeros((1, 5)), plan])))
+    return as_frameset(parts, 10_000), np.concatenate([r["on_desk"] for r in parts])
 
 
 def trial_frames(task: str) -> np.ndarray:
@@ -141,20 +146,7 @@ def mined(task: str, runs: list[Path], repeat: int) -> FrameSet | None:
                                  "mine tuning instances (#10 and up) only")  # fmt: skip
             r = rollout(suite.get(task, record["instance"]), np.asarray(record["actions"]))
             parts.append(r)
-    if not parts:
-        return None
-    one = FrameSet(
-        np.concatenate([r["images"] for r in parts]),
-        np.concatenate([r["positive"] for r in parts]),
-        np.concatenate([np.full(len(r["positive"]), 20_000 + i) for i, r in enumerate(parts)]),
-        np.concatenate([np.arange(len(r["positive"])) for r in parts]),
-        np.concatenate([progress_targets(r["positive"]) for r in parts]),
-        progress_threshold(),
-    )  # fmt: skip
-    out = one
-    for _ in range(repeat - 1):
-        out = concat(out, one)
-    return out
+    return as_frameset(parts * repeat, 20_000) if parts else None
 
 
 def concat(a: FrameSet, b: FrameSet) -> FrameSet:

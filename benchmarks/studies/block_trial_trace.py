@@ -77,7 +77,7 @@ def trace(inst, actions: np.ndarray, cost) -> list[dict[str, Any]]:
         env.reset_to(inst.init_state)
         env.set_goal(inst.goal_state)
         others = [o for o in OBJECTS if o != task.target]
-        start = {o: p for o, p in env.original_object_positions.items()}
+        start = env.original_object_positions
         rows, frames, states = [], [], []
         for k in range(len(actions) + 1):
             if k:
