@@ -19,7 +19,7 @@ and steps of the shipped file): **base**, on the dataset's training trajectories
 on (1) the dataset's held-out trajectories (accuracy against the paper's label, as the shipped
 metrics), (2) the held-out exploration rollouts of #22–#29 (the share of frames with the block
 on the desk that score as success), and (3) the executed frames of the committed oracle trials
-that failed (``results/oracle/samples-50`` and ``results/oracle-runs/blocks-spec``), every one
+that failed (``results/oracle/samples-50`` and ``results/oracle/spec``), every one
 of them with the block on the desk: the share scored as success and the largest logit. The shipped
 classifier is scored beside them. With ``--mined``, a third classifier, **mined**, adds
 the frames of the oracle's own trials on tuning instances (hard negatives: the poses a planner
@@ -65,7 +65,7 @@ TRAIN_INSTANCES = range(10, 22)
 HELDOUT_INSTANCES = range(22, 30)
 STEPS = 15
 _RESULTS = Path(__file__).resolve().parents[2] / "results"
-RECORDS = (_RESULTS / "oracle" / "samples-50", _RESULTS / "oracle-runs" / "blocks-spec")
+RECORDS = (_RESULTS / "oracle" / "samples-50", _RESULTS / "oracle" / "spec")
 
 
 def rollout(inst, actions: np.ndarray) -> dict[str, np.ndarray]:

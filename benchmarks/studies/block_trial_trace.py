@@ -1,7 +1,7 @@
 """Where did a failed off-table-block trial go? Its executed steps against the scripted push.
 
     MUJOCO_GL=egl OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.studies.block_trial_trace \\
-        --run results/oracle-runs/blocks-spec --tasks robodesk/flat_block_off_table \\
+        --run results/oracle/spec --tasks robodesk/flat_block_off_table \\
         [--instances 1 2] [--json outputs/diagnosis/block-trace.json]
 
 A trial that never pushes its block off the desk failed either because the planner never found

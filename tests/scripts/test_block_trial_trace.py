@@ -16,8 +16,7 @@ from vp2.data.suite import TaskSuite
 from vp2.planning.agent import frames_to_tensor
 from vp2.planning.planner import build_cost
 
-RECORDS = (Path(__file__).resolve().parents[2] / "results" / "oracle-runs" / "blocks-spec"
-           / "trials.jsonl")
+RECORDS = Path(__file__).resolve().parents[2] / "results" / "oracle" / "spec" / "trials.jsonl"
 TASK = "robodesk/flat_block_off_table"
 
 
