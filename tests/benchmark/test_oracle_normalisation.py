@@ -164,6 +164,11 @@ def test_a_table_measured_with_another_classifier_or_weight_is_not_used():
         assert summary.oracle_note == (
             "the shipped oracle table 'desk' planned with classifier aaaa at weight 10, this "
             f"run with {line}" + remedy)
+    # The random agent plans nothing: its records name no classifier and no cost, and the
+    # table of its (SPEC) budget normalises it whatever classifier the oracle planned with.
+    random = records(False)
+    random[0]["agent"], random[0]["cost"] = {"agent": "random_actions"}, "none"
+    assert summarize_run(random, shipped=oracle).normalised == pytest.approx(2.0)
     # A run resumed after a classifier change: one trial with the table's, one without.
     mixed = records({"sha256": "aaaa", "weight": 10.0}) + records({"sha256": "bbbb", "weight": 10.0})
     mixed[1]["instance"], mixed[1]["instance_sha"] = 1, "r1"
