@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 from benchmarks import common
+from benchmarks.studies.classifier_weight_tuning import with_weight
 from vp2.benchmark.results import read_trials
 from vp2.data.suite import TaskSuite
 from vp2.envs.robodesk import OBJECTS, OFF_TABLE_BELOW
@@ -212,9 +213,9 @@ def main() -> None:
         if record.get("instance_sha") and record["instance_sha"] != inst.fingerprint:
             parser.error(f"{inst.key}: the record's instance is not the shipped suite's")
         goal = frames_to_tensor(inst.goal_image, torch.device("cpu"))
-        cost, kind = build_cost(record["task"], goal, "spec")
         if (weight := planned_weight(record)) is not None:
-            cost.terms[1] = (weight, cost.terms[1][1])
+            with_weight(record["task"], weight)
+        cost, kind = build_cost(record["task"], goal, "spec")
         summary = summarise(inst, record, cost)
         print_summary(summary)
         out.append(summary)

@@ -246,10 +246,9 @@ def match_tables(
     for r in records:
         if r.get("instance_sha") is not None:
             shas[r["task"]][int(r["instance"])] = r["instance_sha"]
-        agent = r.get("agent")
         # An agent that plans nothing (random actions: cost "none") has no classifier to compare.
-        if isinstance(agent, dict) and agent.get("cost", r.get("cost")) != "none":
-            classifiers[r["task"]][_classifier_key(agent.get("classifier"))] = None
+        if isinstance(r.get("agent"), dict) and r.get("cost") != "none":
+            classifiers[r["task"]][_classifier_key(r["agent"].get("classifier"))] = None
     samples = {t: task_samples(t, planner) for t in order}
     fingerprints: dict[str, str] = {}
     rows: dict[str, TaskSummary] = {}
