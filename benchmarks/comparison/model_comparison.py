@@ -78,672 +78,72 @@ rather than mixing results. Runs and metrics name a family's final checkpoint *f
 retrained model cannot meet the trials of its predecessor. ``--smoke`` is a tiny
 configuration for the end-to-end test (``tests/scripts/test_model_comparison.py``). On a CPU
 shared with other work pass ``--threads 1`` (docs/models.md: two threads stalled each other).
+
+The stages live in modules of their own; this one holds the command line and the split by
+environment: :mod:`~benchmarks.comparison.model_comparison_settings` (what is compared, the
+settings, ``log.jsonl``), ``model_comparison_train`` (a.), ``model_comparison_conditioning``
+(b.: conditioning and diagnose), ``model_comparison_metrics`` (c.), ``model_comparison_runs``
+(d.), ``model_comparison_publish`` (e.–g.), ``model_comparison_build`` (every stage in order)
+and ``model_comparison_results`` with ``model_comparison_sections`` (the page's text).
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
-import dataclasses
-import datetime
-import json
 import logging
-import os
-import shutil
 import sys
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import torch
 
-import vp2
 from benchmarks import common
-from benchmarks.comparison import records as evidence
-from benchmarks.comparison.model_comparison_results import (
-    combined_markdown,
-    relative_link,
-    results_markdown,
+from benchmarks.comparison.model_comparison_build import (
+    run_comparison,
+    save_records,
+    write_build_record,
+    write_zoo_cards,
 )
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.diagnose import DiagnoseConfig, diagnose_model, measure_conditioning
-from vp2.benchmark.model_spec import ModelSpec, resolve_model
-from vp2.benchmark.runner import RunResult, run_benchmark
-from vp2.data.storage import DatasetError, load_manifest
-from vp2.envs import env_class
-from vp2.metrics.evaluate import DEFAULT_BATCH_SIZE, evaluate_model, write_metrics
-from vp2.metrics.fvd import FrechetVideoDistance
-from vp2.planning.config import PlannerConfig
-from vp2.report.page import write_report, write_run_report
-from vp2.report.study import study
-from vp2.report.study_output import write_study
-from vp2.training.checkpoint import list_checkpoints
-from vp2.training.config import TrainConfig
-from vp2.training.perceptual import MissingWeightsError
-from vp2.training.trainer import train
-from vp2.utils.io import atomic_path, json_safe, write_json_atomic
+from benchmarks.comparison.model_comparison_conditioning import conditioning_stage, diagnose_stage
+from benchmarks.comparison.model_comparison_metrics import metrics_stage, shared_fvd
+from benchmarks.comparison.model_comparison_publish import publish, publish_found, screenshot
+from benchmarks.comparison.model_comparison_results import combined_markdown, relative_link
+from benchmarks.comparison.model_comparison_runs import run_config, runs_stage
+from benchmarks.comparison.model_comparison_settings import (
+    BASELINES,
+    DEFAULT_DATA,
+    FAMILIES,
+    STEP_CAP,
+    Settings,
+    StageLog,
+    TrainStage,
+    dataset_env,
+    device_name,
+    done_record,
+    extra_env,
+    parse_extras,
+    parse_seeds_for,
+)
+from benchmarks.comparison.model_comparison_train import (
+    model_spec,
+    train_config,
+    train_family,
+    train_stage,
+)
+from vp2.utils.io import atomic_path
 from vp2.utils.tensors import resolve_device
 
-
-@dataclasses.dataclass(frozen=True)
-class TrainStage:
-    """One model a family trains.
-
-    Attributes:
-        model: Registered model name.
-        preset: Its size preset.
-        overrides: Model config overrides (as ``vp2 train --model-arg``).
-        share: Its share of the family's time budget.
-        tokenizer: Whether it takes the previous stage's checkpoint as ``tokenizer_checkpoint``
-            (MaskViT's transformer).
-    """
-
-    model: str
-    preset: str
-    overrides: tuple[tuple[str, Any], ...] = ()
-    share: float = 1.0
-    tokenizer: bool = False
-
-
-#: The families compared and what each trains, in order; the last stage is the predictor
-#: that is evaluated. SVG′ is shrunk as the shipped model is (M = K = 0.125, 1.65 M parameters).
-FAMILIES: dict[str, tuple[TrainStage, ...]] = {
-    "svg_prime": (TrainStage("svg_prime", "m0.25k0.25", (("m", 0.125), ("k", 0.125))),),
-    "fitvid": (TrainStage("fitvid", "mini"),),
-    "struct_vrnn": (TrainStage("struct_vrnn", "small"),),
-    "mcvd": (TrainStage("mcvd", "tiny"),),
-    "maskvit": (
-        TrainStage("maskvit_tokenizer", "tiny", share=1 / 3),
-        TrainStage("maskvit", "tiny", share=2 / 3, tokenizer=True),
-    ),
-}
-#: The baselines run beside the families (label -> run settings); only repeat-last-frame
-#: predicts frames, so only it has metrics.
-BASELINES: dict[str, dict[str, Any]] = {
-    "repeat_last_frame": {"model": "repeat_last_frame"},
-    "random": {"model": "none", "agent": "random", "save_gifs": False},
-}
-#: Steps of a budgeted training run: far more than any budget buys, so the budget ends it.
-STEP_CAP = 10_000_000
-
-
-@dataclasses.dataclass(frozen=True)
-class Settings:
-    """The comparison's settings (from the command line, :func:`settings_from_args`; the flag
-    of each field has its name, e.g. ``--num-samples``). ``device`` is resolved (``cpu``,
-    ``cuda``), ``threads`` is torch's thread count, ``command`` rebuilds the comparison."""
-
-    out: Path
-    data: Path
-    docs: Path | None  # where the page is also published (None: only under out)
-    notes: Path | None  # Markdown file the page links in its "Reading" section
-    publish_only: bool  # rebuild study, report and page from what is on disk; run nothing
-    budget_minutes: float
-    families: tuple[str, ...]
-    extras: tuple[tuple[str, str], ...]  # (label, model spec): evaluated, not trained here
-    tasks: tuple[str, ...]
-    num_instances: int
-    seeds: tuple[int, ...]
-    seeds_for: tuple[tuple[str, tuple[int, ...]], ...]  # (run, seeds): fewer seeds for a run
-    num_samples: int
-    num_steps: int
-    batch_size: int
-    device: str  # resolved: "cpu", "cuda", "cuda:1", ...
-    threads: int
-    workers: int  # trial processes of `vp2 run`
-    loader_workers: int  # DataLoader processes of `vp2 train`
-    eval_interval: int
-    eval_batches: int
-    ckpt_interval: int
-    log_interval: int
-    metrics_clips: int
-    lpips: tuple[str, ...]
-    fvd: bool
-    conditioning_clips: int
-    conditioning_samples: int
-    diagnose_clips: int | None  # None: vp2 diagnose's default (what its predictor was fitted on)
-    diagnose_instances: int | None  # instances per task probed; None: vp2 diagnose's default
-    skip_train: bool
-    smoke: bool
-    command: str
-    records: Path | None = None  # this part's committed evidence (benchmarks.comparison.records)
-
-    def seeds_of(self, name: str) -> tuple[int, ...]:
-        """The control-run seeds of run ``name``: ``--seeds``, unless ``--seeds-for`` gives
-        it fewer (a slow model's runs on a subset)."""
-        return dict(self.seeds_for).get(name, self.seeds)
-
-    def run_order(self) -> list[str]:
-        """The order the runs go in: the baselines (minutes), the extra models, the families."""
-        return [*BASELINES, *dict(self.extras), *self.families]
-
-    def table_names(self) -> list[str]:
-        """Every run, in the order of the page's columns and the report's runs."""
-        return [*self.families, *dict(self.extras), *BASELINES]
-
-    def predictor_names(self) -> list[str]:
-        """What predicts frames, so has metrics: families, extra models, repeat-last-frame."""
-        return [*self.families, *dict(self.extras), "repeat_last_frame"]
-
-
-# --------------------------------------------------------------------------- bookkeeping
-
-
-class StageLog:
-    """``log.jsonl``: one line per stage and invocation (what was found done, what ran)."""
-
-    def __init__(self, out: Path):
-        self.path = out / "log.jsonl"
-        self.invocation = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
-
-    def add(self, stage: str, name: str, status: str, **extra: Any) -> None:
-        line = {"invocation": self.invocation, "stage": stage, "name": name, "status": status}
-        line.update(extra)
-        print(f"[{stage}] {name}: {status} {json.dumps(extra) if extra else ''}", flush=True)
-        with self.path.open("a") as f:  # one short line per write: a kill loses at most it
-            f.write(json.dumps(line) + "\n")
-
-
-def done_record(path: Path, settings: dict[str, Any]) -> dict[str, Any] | None:
-    """The record at ``path`` if a stage completed it with ``settings``; ``None`` if absent.
-
-    Raises:
-        ValueError: it was made with other settings (results would mix).
-    """
-    if not path.is_file():
-        return None
-    record = json.loads(path.read_text())
-    saved = record.get("settings") or {}
-    settings = json_safe(settings)
-    if saved != settings:
-        changed = sorted(k for k in {**saved, **settings} if saved.get(k) != settings.get(k))
-        raise ValueError(
-            f"{path} was made with other settings ({', '.join(changed)}: "
-            f"{[saved.get(k) for k in changed]} vs now {[settings.get(k) for k in changed]}); "
-            "use another --out or delete it"
-        )
-    return record
-
-
-def device_name(device: str) -> str:
-    """The device in words: the GPU's name, or the CPU's model and core count."""
-    if device.startswith("cuda"):
-        return f"{device} ({torch.cuda.get_device_name(torch.device(device))})"
-    return f"cpu ({common.cpu_name()}, {os.cpu_count()} cores)"
-
-
-# --------------------------------------------------------------------------- a. training
-
-
-def train_config(s: Settings, stage: TrainStage, tokenizer: str | None) -> TrainConfig:
-    """The ``vp2 train`` run of one stage of a family."""
-    overrides = dict(stage.overrides)
-    if stage.tokenizer:
-        overrides["tokenizer_checkpoint"] = tokenizer
-    return TrainConfig(
-        model=stage.model,
-        preset=stage.preset,
-        model_overrides=overrides,
-        dataset=str(s.data),
-        out_dir=str(s.out / "train" / stage.model),
-        steps=STEP_CAP,
-        max_minutes=s.budget_minutes * stage.share,
-        batch_size=s.batch_size,
-        seed=0,
-        eval_interval=s.eval_interval,
-        eval_batches=s.eval_batches,
-        ckpt_interval=s.ckpt_interval,
-        log_interval=s.log_interval,
-        workers=s.loader_workers,
-        device=s.device,
-        tensorboard=False,
-        progress=sys.stderr.isatty(),
-        resume=True,
-    )
-
-
-def _train_settings(config: TrainConfig) -> dict[str, Any]:
-    """What makes a training record reusable: everything that changes the weights."""
-    keys = ("model", "preset", "model_overrides", "dataset", "batch_size", "seed", "max_minutes")
-    return {k: getattr(config, k) for k in keys}
-
-
-def train_stage(s: Settings, config: TrainConfig, stage_log: StageLog) -> dict[str, Any]:
-    """Trains (or resumes, or finds done) one model; returns its record."""
-    path = Path(config.out_dir).with_suffix(".json")
-    settings = _train_settings(config)
-    record = done_record(path, settings)
-    if record is not None and (record.get("complete") or s.skip_train):
-        stage_log.add("train", config.model, "done earlier", step=record["step"])
-        return record
-    if s.skip_train:
-        # Evaluate whatever the run directory holds (e.g. trained elsewhere and copied here).
-        existing = list_checkpoints(config.out_dir)
-        if not existing:
-            raise FileNotFoundError(f"--skip-train: no checkpoint in {config.out_dir}")
-        payload = torch.load(existing[-1], map_location="cpu", weights_only=True)
-        found = _train_settings(TrainConfig.from_dict(payload["train_config"]))
-        if json_safe(found) != json_safe(settings):
-            raise ValueError(
-                f"--skip-train: {existing[-1]} was trained with {found}, this comparison asks "
-                f"for {settings}"
-            )
-        seconds = float(payload.get("train_seconds", 0.0))
-        budget_reached = seconds >= 60 * config.max_minutes
-        record = {
-            "step": int(payload["step"]),
-            "train_minutes": seconds / 60,
-            "budget_reached": budget_reached,
-            "checkpoint": str(existing[-1]),
-            # An unfinished run taken as it is: a later invocation without --skip-train
-            # continues its training.
-            "complete": budget_reached,
-            "note": "--skip-train: the newest checkpoint, as found",
-        }
-        stage_log.add("train", config.model, "skipped (--skip-train)", step=record["step"])
-    else:
-        resumed = bool(list_checkpoints(config.out_dir))
-        result = train(config)
-        record = {
-            "step": result.step,
-            "train_minutes": result.train_minutes,
-            "budget_reached": result.budget_reached,
-            "checkpoint": str(result.checkpoint),
-            "complete": True,
-        }
-        stage_log.add("train", config.model, "resumed" if resumed else "trained", step=result.step)
-    run_record = json.loads((Path(config.out_dir) / "config.json").read_text())
-    record.update(
-        settings=settings,
-        budget_minutes=config.max_minutes,
-        parameters=run_record.get("parameters"),
-        # A run found as it is says only the torch device it trained on.
-        device=f"{run_record['device']} (elsewhere)" if s.skip_train else device_name(s.device),
-        threads=None if s.skip_train else torch.get_num_threads(),
-    )
-    write_json_atomic(path, json_safe(record))
-    return record
-
-
-def train_family(s: Settings, family: str, stage_log: StageLog) -> list[dict[str, Any]]:
-    """Trains a family's stages in order; returns their records (the last is the predictor)."""
-    records: list[dict[str, Any]] = []
-    for stage in FAMILIES[family]:
-        tokenizer = records[-1]["checkpoint"] if stage.tokenizer else None
-        records.append(train_stage(s, train_config(s, stage, tokenizer), stage_log))
-    return records
-
-
-def model_spec(family: str, records: Sequence[dict[str, Any]]) -> str:
-    """The family's ``NAME:CHECKPOINT`` spec: its final checkpoint *file*, so that runs and
-    metrics made with another checkpoint of the same run directory are refused, not mixed."""
-    return f"{FAMILIES[family][-1].model}:{records[-1]['checkpoint']}"
-
-
-# --------------------------------------------------------------------------- b. conditioning
-
-
-def conditioning_stage(s: Settings, family: str, spec: str, stage_log: StageLog) -> None:
-    """True versus shuffled actions on held-out clips, measured as ``vp2 diagnose`` measures
-    them (:func:`vp2.benchmark.diagnose.measure_conditioning`, seed 0: the same clips and
-    shuffle): ``conditioning/<family>.json``."""
-    path = s.out / "conditioning" / f"{family}.json"
-    settings = {
-        "model": spec,
-        "data": str(s.data),
-        "clips": s.conditioning_clips,
-        "samples": s.conditioning_samples,
-        "measure": "vp2.benchmark.diagnose.measure_conditioning",
-    }
-    if done_record(path, settings) is not None:
-        stage_log.add("conditioning", family, "done earlier")
-        return
-    started = time.perf_counter()
-    device = torch.device(s.device)
-    env = load_manifest(s.data).get("config", {}).get("env", "robodesk")
-    model = resolve_model(spec, {}, env=env, action_dim=int(env_class(env).action_dim),
-                          device=device)
-    result = measure_conditioning(model, s.data, s.conditioning_clips,
-                                  s.conditioning_samples, 0, device)
-    record = {"settings": settings, **result, "seconds": time.perf_counter() - started}
-    write_json_atomic(path, json_safe(record))
-    stage_log.add("conditioning", family, "ran", ratio=record["ratio"])
-
-
-def write_zoo_cards(s: Settings) -> list[Path]:
-    """The card of each extra model from the zoo (``zoo:NAME``, checked against its
-    checkpoint), as ``zoo/<label>.json``: the page's budget row reads it. Returns the files."""
-    written = []
-    for label, spec in s.extras:
-        parsed = ModelSpec.parse(spec)
-        if parsed.kind == "zoo":
-            parsed.check()
-            path = s.out / "zoo" / f"{label}.json"
-            write_json_atomic(path, json_safe(parsed.zoo.to_json()))
-            written.append(path)
-    return written
-
-
-def diagnose_stage(s: Settings, name: str, spec: str, stage_log: StageLog) -> Path:
-    """``vp2 diagnose`` of one model: ``diagnose/<name>.json`` holds ``settings`` and the
-    diagnose ``report``. Clips and probed instances stay at diagnose's defaults unless the
-    settings give them (``--smoke``), since its predicted score was fitted at those."""
-    path = s.out / "diagnose" / f"{name}.json"
-    env = load_manifest(s.data).get("config", {}).get("env", "robodesk")
-    fields = {"clips": s.diagnose_clips, "instances_per_task": s.diagnose_instances}
-    fields = {k: v for k, v in fields.items() if v is not None}
-    config = DiagnoseConfig(
-        model=spec, env=env, data=str(s.data), num_samples=s.num_samples, device=s.device,
-        progress=sys.stderr.isatty(), **fields,
-    )  # fmt: skip
-    settings = {
-        "model": spec, "data": str(s.data), "env": env, "num_samples": s.num_samples,
-        "clips": config.clips, "instances_per_task": config.instances_per_task,
-        "sampling_seeds": config.sampling_seeds, "seed": config.seed,
-    }  # fmt: skip
-    if done_record(path, settings) is not None:
-        stage_log.add("diagnose", name, "done earlier")
-        return path
-    partial = path.with_name(f"{path.stem}.partial.json")  # a stopped diagnosis goes on from it
-    report = diagnose_model(config, partial=partial)
-    write_json_atomic(path, json_safe({"settings": settings, "report": report}))
-    partial.unlink(missing_ok=True)
-    stage_log.add(
-        "diagnose", name, "ran", predicted=report.get("predicted_control_score"),
-        seconds=report["timing"]["total_s"],
-    )  # fmt: skip
-    return path
-
-
-# --------------------------------------------------------------------------- c. metrics
-
-
-def shared_fvd(s: Settings) -> FrechetVideoDistance | None:
-    """One FVD metric for every model's ``vp2 metrics``, so the held-out clips' I3D features
-    are computed once (``FrechetVideoDistance.reference_features``); ``None`` when FVD is off
-    or its weights are absent (each model's metrics then say why FVD was skipped)."""
-    if not s.fvd:
-        return None
-    try:
-        return FrechetVideoDistance(device=s.device, batch_size=DEFAULT_BATCH_SIZE)
-    except MissingWeightsError:
-        return None
-
-
-def metrics_stage(
-    s: Settings,
-    name: str,
-    spec: str,
-    stage_log: StageLog,
-    fvd_metric: FrechetVideoDistance | None = None,
-) -> Path:
-    """``vp2 metrics`` of one model: ``metrics/<name>/metrics.json`` (``fvd_metric``: one
-    shared by the models, see :func:`shared_fvd`)."""
-    path = s.out / "metrics" / name / "metrics.json"
-    settings = {
-        "model": spec,
-        "data": str(s.data),
-        "num_clips": s.metrics_clips,
-        "seed": 0,
-        "lpips": list(s.lpips),
-        "fvd": s.fvd,
-    }
-    if path.is_file():
-        done = json.loads(path.read_text())
-        if done.get("comparison_settings") != settings:
-            raise ValueError(f"{path} was made with other settings; use another --out or delete it")
-        # FVD skipped for want of its weights, which are here now: measure again
-        if not ("fvd" in done.get("skipped", {}) and fvd_metric is not None):
-            stage_log.add("metrics", name, "done earlier")
-            return path
-    result = evaluate_model(
-        spec,
-        s.data,
-        num_clips=s.metrics_clips,
-        seed=0,
-        batch_size=DEFAULT_BATCH_SIZE,
-        lpips_nets=s.lpips,
-        fvd=s.fvd,
-        device=s.device,
-        progress=sys.stderr.isatty(),
-        fvd_metric=fvd_metric,
-    )
-    result["comparison_settings"] = settings
-    write_metrics(path, result)
-    stage_log.add(
-        "metrics", name, "ran", mse=result["metrics"]["mse"], skipped=list(result["skipped"])
-    )
-    return path
-
-
-# --------------------------------------------------------------------------- d. runs
-
-
-def run_config(s: Settings, name: str, spec: str | None) -> RunConfig:
-    """The ``vp2 run`` of a family (``spec``) or of a baseline (:data:`BASELINES`)."""
-    shared: dict[str, Any] = dict(
-        out=str(s.out / "runs" / name),
-        tasks=s.tasks,
-        num_instances=s.num_instances,
-        seeds=s.seeds_of(name),
-        planner=PlannerConfig(num_samples=s.num_samples),
-        num_steps=s.num_steps,
-        workers=s.workers,
-        device=s.device,
-        resume=True,  # a fresh directory starts, an existing one runs only its missing trials
-        progress=sys.stderr.isatty(),
-    )
-    if spec is not None:
-        return RunConfig(model=spec, **shared)
-    baseline = dict(BASELINES[name])
-    if baseline.get("agent") == "random":
-        shared["planner"] = PlannerConfig()  # plans nothing: no planner setting departs from SPEC
-    return RunConfig(**baseline, **shared)
-
-
-def runs_stage(s: Settings, name: str, spec: str | None, stage_log: StageLog) -> RunResult:
-    config = run_config(s, name, spec)
-    result = run_benchmark(config, after_run=write_run_report)
-    status = "ran" if result.num_run else "done earlier"
-    stage_log.add(
-        "run",
-        name,
-        status,
-        num_run=result.num_run,
-        num_skipped=result.num_skipped,
-        trials=len(result.records),
-        errors=result.num_errors,
-    )
-    return result
-
-
-# --------------------------------------------------------------------------- e./f. study, report
-
-
-def screenshot(html: Path, png: Path, width: int = 1200) -> str | None:
-    """A PNG of the report down to its trial videos (headless Chromium over the DevTools pipe
-    of ``tests/report/headless.py``); returns why not, or ``None`` when written."""
-    try:
-        from tests.report.headless import Browser, find_chromium
-    except ImportError as exc:
-        return f"no screenshot: tests/report/headless.py could not be imported ({exc})"
-    executable = find_chromium()
-    if executable is None:
-        return "no screenshot: Chromium is not on PATH"
-    try:
-        with Browser(executable, width=width, height=1000) as browser:
-            browser.open(html)
-            # The page above the gallery: the runs, success chart and table, normalised
-            # scores and the study (the GIF gallery below would make it megabytes).
-            height = browser.evaluate(
-                "(() => { const h = [...document.querySelectorAll('h2')]"
-                ".find(e => e.textContent === 'Trial videos');"
-                " return h ? h.getBoundingClientRect().top + window.scrollY"
-                " : document.body.scrollHeight; })()"
-            )
-            image = browser.screenshot(
-                {"x": 0, "y": 0, "width": width, "height": min(height, 12000)}
-            )
-    except (OSError, RuntimeError, TimeoutError) as exc:
-        return f"no screenshot: Chromium failed ({exc!r})"
-    with atomic_path(png) as tmp:
-        tmp.write_bytes(image)
-    return None
-
-
-# --------------------------------------------------------------------------- the driver
-
-
-def write_build_record(s: Settings) -> None:
-    """``comparison.json``: what ``results.md`` reads besides the stages' files (the settings,
-    and what was compared)."""
-    record = {
-        **dataclasses.asdict(s),
-        "family_stages": {
-            f: [
-                {**dataclasses.asdict(stage), "budget_minutes": s.budget_minutes * stage.share}
-                for stage in FAMILIES[f]
-            ]
-            for f in s.families
-        },
-        "extra_models": dict(s.extras),
-        "run_names": s.table_names(),
-        "metrics_names": s.predictor_names(),
-        "vp2_version": vp2.__version__,
-        "torch_version": torch.__version__,
-    }
-    write_json_atomic(s.out / "comparison.json", json_safe(record))
-
-
-def run_comparison(s: Settings, after_publish: Callable[[], object] | None = None) -> Path:
-    """Runs (or resumes) every stage; returns the path of ``results.md``. ``after_publish`` is
-    called each time the page is rewritten (a comparison of several environments rewrites its
-    combined page there, so a build that spans sessions shows what it finished)."""
-    if s.publish_only:
-        return publish_found(s)
-    published = after_publish or (lambda: None)
-    s.out.mkdir(parents=True, exist_ok=True)
-    stage_log = StageLog(s.out)
-    if s.records is not None:
-        restored = evidence.restore(s.records, s.out)
-        if any(restored.values()):
-            stage_log.add("records", str(s.records), "restored", **restored)
-    write_build_record(s)
-    write_zoo_cards(s)
-    train_records = {f: train_family(s, f, stage_log) for f in s.families}
-    specs = {f: model_spec(f, records) for f, records in train_records.items()}
-    specs.update(s.extras)
-    for family, spec in specs.items():
-        conditioning_stage(s, family, spec, stage_log)
-    predictors = {**specs, "repeat_last_frame": "repeat_last_frame"}
-    for name, spec in predictors.items():
-        diagnose_stage(s, name, spec, stage_log)
-    fvd_metric = shared_fvd(s)  # loading the I3D takes a second, even when all is done
-    metrics_files = {
-        name: metrics_stage(s, name, spec, stage_log, fvd_metric)
-        for name, spec in predictors.items()
-    }
-    save_records(s)
-    # The baselines first (minutes), then the extra models, then the families in the order
-    # given: the page is rewritten after every run that planned trials, so a build cut short
-    # (a session's end) still publishes what it finished, and says what is pending.
-    order = s.run_order()
-    run_dirs: dict[str, Path] = {}
-    for name in order:
-        result = runs_stage(s, name, specs.get(name), stage_log)
-        run_dirs[name] = result.run_dir
-        save_records(s)
-        pending = [n for n in order if n not in run_dirs]
-        if pending and result.num_run:
-            publish(s, run_dirs, metrics_files, stage_log, pending)
-            published()
-    page = publish(s, run_dirs, metrics_files, stage_log, [])
-    published()
-    return page
-
-
-def save_records(s: Settings) -> None:
-    """Copies what the part measured so far into its records (``--records``), if any."""
-    if s.records is not None:
-        evidence.save(s.out, s.records)
-
-
-def publish_found(s: Settings) -> Path:
-    """``--publish-only``: the study, report and page of the runs finished under ``s.out``
-    (those with a ``summary.json``), for the families and extra models the build recorded in
-    ``comparison.json``; nothing is trained, measured or planned, and the recorded command
-    stays the build's."""
-    recorded = s.out / "comparison.json"
-    if not recorded.is_file():
-        raise ValueError(f"--publish-only: {recorded} does not exist; run the comparison first")
-    if s.records is not None:
-        evidence.restore(s.records, s.out)
-    build = json.loads(recorded.read_text())
-    s = dataclasses.replace(
-        s,
-        families=tuple(build["families"]),
-        extras=tuple((k, v) for k, v in build.get("extra_models", {}).items()),
-    )
-    order = s.run_order()
-    run_dirs = {n: s.out / "runs" / n for n in order}
-    run_dirs = {n: d for n, d in run_dirs.items() if (d / "summary.json").is_file()}
-    if not run_dirs:
-        raise ValueError(f"--publish-only: no finished run under {s.out / 'runs'}")
-    metrics_files = {n: s.out / "metrics" / n / "metrics.json" for n in s.predictor_names()}
-    metrics_files = {n: p for n, p in metrics_files.items() if p.is_file()}
-    pending = [n for n in order if n not in run_dirs]
-    return publish(s, run_dirs, metrics_files, StageLog(s.out), pending)
-
-
-def _notes_link(s: Settings, page: Path) -> str | None:
-    """The link from ``page`` to the ``--notes`` file, ``None`` without one."""
-    return None if s.notes is None else relative_link(s.notes, page)
-
-
-def publish(
-    s: Settings,
-    run_dirs: dict[str, Path],
-    metrics_files: dict[str, Path],
-    stage_log: StageLog,
-    pending: list[str],
-) -> Path:
-    """The study, the report (and its screenshot) and ``results.md`` of the runs finished so
-    far (``run_dirs``); ``pending`` names the runs not yet finished. Returns ``results.md``."""
-    study_dir = s.out / "study"
-    entries = [(n, run_dirs[n], path) for n, path in metrics_files.items() if n in run_dirs]
-    if entries:
-        write_study(study(entries), study_dir)
-        stage_log.add("study", "all", "written", entries=len(entries))
-    else:  # runs finished beside a build still measuring metrics (--publish-only meanwhile)
-        shutil.rmtree(study_dir, ignore_errors=True)
-        stage_log.add("study", "all", "waits", why="no finished run has its metrics yet")
-    labels = [n for n in s.table_names() if n in run_dirs]
-    report = write_report(
-        [run_dirs[n] for n in labels],
-        s.out / "report.html",
-        metrics={str(run_dirs[n]): path for n, path in metrics_files.items() if n in run_dirs},
-        labels=labels,
-        title="vp2 model comparison: " + ", ".join(labels),
-    )
-    shot_note = screenshot(report, s.out / "report.png")
-    stage_log.add("report", "all", "written", screenshot=shot_note or "report.png")
-    path = s.out / "results.md"
-    written = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
-    with atomic_path(path) as tmp:
-        tmp.write_text(results_markdown(s.out, shot_note, pending, notes=_notes_link(s, path),
-                                        written=written))
-    if s.docs is not None:  # the published copy, its screenshot beside it
-        image = s.docs.with_name(s.docs.stem + "-report.png")
-        if shot_note is None:
-            with atomic_path(image) as tmp:
-                tmp.write_bytes((s.out / "report.png").read_bytes())
-        with atomic_path(s.docs) as tmp:
-            notes = _notes_link(s, s.docs)
-            tmp.write_text(results_markdown(s.out, shot_note, pending, image.name, notes,
-                                            written))
-    stage_log.add("results", "all", "written", pending=pending)
-    return path
+#: The names this module has always offered (the stages' live in their modules now).
+__all__ = [
+    "BASELINES", "DEFAULT_DATA", "FAMILIES", "FULL", "SMOKE", "STEP_CAP", "Settings", "StageLog",
+    "TrainStage", "conditioning_stage", "dataset_env", "device_name", "diagnose_stage",
+    "done_record", "extra_env", "main", "metrics_stage", "model_spec", "parse_args",
+    "parse_extras", "parse_seeds_for", "part_settings", "publish", "publish_found", "run_config",
+    "run_comparison", "run_parts", "runs_stage", "save_records", "screenshot", "settings_from_args",
+    "shared_fvd", "train_config", "train_family", "train_stage", "write_build_record",
+    "write_parts_page", "write_zoo_cards",
+]  # fmt: skip
 
 
 #: The defaults of the flags that --smoke changes: the comparison the issue asks for.
@@ -855,63 +255,6 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def parse_extras(items: Sequence[str], families: Sequence[str]) -> tuple[tuple[str, str], ...]:
-    """``LABEL=MODEL`` items -> ``((label, model), ...)``.
-
-    Raises:
-        ValueError: an item without ``=``, an empty side, or a label that is already taken.
-    """
-    taken = {*families, *BASELINES}
-    extras: list[tuple[str, str]] = []
-    for item in items:
-        label, sep, spec = item.partition("=")
-        label, spec = label.strip(), spec.strip()
-        if not sep or not label or not spec:
-            raise ValueError(f"--extra {item!r}: expected LABEL=MODEL, e.g. shipped=svg_prime:model.pt")
-        if label in taken:
-            raise ValueError(f"--extra {item!r}: the label {label!r} is already used; pick another")
-        taken.add(label)
-        extras.append((label, spec))
-    return tuple(extras)
-
-
-def parse_seeds_for(
-    items: Sequence[str], names: Sequence[str], seeds: Sequence[int]
-) -> tuple[tuple[str, tuple[int, ...]], ...]:
-    """``RUN=S[,S...]`` items -> ``((run, seeds), ...)``; ``names`` are the runs there are.
-
-    Raises:
-        ValueError: an item that is not ``RUN=SEEDS``, a run there is not, a run given twice,
-            or seeds that are not integers of ``--seeds``.
-    """
-    out: dict[str, tuple[int, ...]] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        name = name.strip()
-        try:
-            chosen = tuple(int(x) for x in value.split(",") if x.strip())
-        except ValueError:
-            chosen = ()
-        if not sep or not name or not chosen:
-            raise ValueError(f"--seeds-for {item!r}: expected RUN=SEEDS, e.g. mcvd=0 or mcvd=0,1")
-        if name not in names:
-            raise ValueError(
-                f"--seeds-for {item!r}: no run {name!r} in this comparison; the runs are "
-                f"{', '.join(names)}"
-            )
-        if name in out:
-            raise ValueError(f"--seeds-for {item!r}: {name} is given seeds twice; give it once")
-        outside = sorted(set(chosen) - set(seeds))
-        if outside:
-            raise ValueError(
-                f"--seeds-for {item!r}: seed(s) {outside} are not among --seeds "
-                f"{' '.join(map(str, seeds))}; a run may only drop seeds, so its column "
-                "compares with the others on the seeds they share"
-            )
-        out[name] = tuple(sorted(set(chosen)))
-    return tuple(out.items())
-
-
 def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Settings:
     """The settings of a command line (``argv``, recorded as the command that rebuilds the
     results); sets torch's thread count if ``--threads`` is given."""
@@ -965,40 +308,6 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str]) -> Setting
         command=command,
         records=None if args.records is None else args.records / dataset_env(args.data),
     )
-
-
-#: The dataset of a comparison that names none.
-DEFAULT_DATA = Path("data/robodesk-300x-64px")
-
-
-def dataset_env(data: Path) -> str:
-    """The environment a dataset was collected in (its manifest's), with a clear error."""
-    try:
-        manifest = load_manifest(data)
-    except DatasetError as exc:
-        raise ValueError(f"--data {data}: {exc}") from exc
-    return str(manifest.get("config", {}).get("env", "robodesk"))
-
-
-def extra_env(label: str, spec: str, envs: Sequence[str]) -> tuple[str, str]:
-    """``(label without its @ENV, env)`` of an extra model in a comparison over ``envs``: the
-    environment after ``@`` in its label, else its zoo card's.
-
-    Raises:
-        ValueError: neither says, or the environment has no dataset here.
-    """
-    label, _, env = label.partition("@")
-    if not env:
-        parsed = ModelSpec.parse(spec)
-        if parsed.kind != "zoo":
-            raise ValueError(
-                f"--extra {label}={spec}: with a dataset per environment, say which "
-                f"environment it plans in: --extra {label}@ENV={spec} (ENV: {', '.join(envs)})")
-        env = parsed.zoo.env
-    if env not in envs:
-        raise ValueError(f"--extra {label}={spec}: it plans in {env}, and no --data is a {env} "
-                         f"dataset (the datasets' environments: {', '.join(envs)})")
-    return label, env
 
 
 def part_settings(args: argparse.Namespace, argv: Sequence[str],

@@ -333,9 +333,11 @@ def test_runs_finished_before_their_metrics_publish_without_a_study(comparison, 
     s = _settings(comparison, "--out", str(tmp_path / "cmp"))
     (s.out / "study").mkdir(parents=True)
     (s.out / "study" / "study.json").write_text("{}")
-    monkeypatch.setattr(comparison, "write_report", lambda runs, out, **kw: out)
-    monkeypatch.setattr(comparison, "screenshot", lambda html, png: "no browser")
-    monkeypatch.setattr(comparison, "results_markdown", lambda out, note, pending, *a, **kw:
+    import benchmarks.comparison.model_comparison_publish as publishing
+
+    monkeypatch.setattr(publishing, "write_report", lambda runs, out, **kw: out)
+    monkeypatch.setattr(publishing, "screenshot", lambda html, png: "no browser")
+    monkeypatch.setattr(publishing, "results_markdown", lambda out, note, pending, *a, **kw:
                         f"pending {' '.join(pending)}\n")
     log = comparison.StageLog(s.out)
     path = comparison.publish(s, {"fitvid": tmp_path / "runs" / "fitvid"}, {}, log, ["mcvd"])
@@ -542,7 +544,9 @@ def test_metrics_skipped_for_missing_fvd_weights_are_measured_again(comparison, 
         return {"metrics": {"mse": 0.1, **({"fvd": 9.0} if fvd else {})},
                 "skipped": {} if fvd else {"fvd": "FVD weights missing"}}
 
-    monkeypatch.setattr(comparison, "evaluate_model", evaluate)
+    import benchmarks.comparison.model_comparison_metrics as metrics
+
+    monkeypatch.setattr(metrics, "evaluate_model", evaluate)
     log, fvd = comparison.StageLog(tmp_path), object()
     path = comparison.metrics_stage(s, "m", "spec", log)
     assert "fvd" in json.loads(path.read_text())["skipped"]
