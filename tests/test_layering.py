@@ -5,7 +5,7 @@ Stages (``docs/architecture.md``): envs -> data -> models -> classifiers -> plan
 -> benchmark -> metrics / report -> cli. ``vp2.utils``, ``vp2.spec`` and ``vp2._quiet`` are shared
 by every stage and import no stage. Imports inside functions count: a lazy import is still a
 dependency, and so is an import named as a string (``"vp2.models.simulator:SimulatorModel"`` handed
-to ``importlib``, a registry of factory paths).
+to ``importlib``, a registry of factory paths). The size rule holds for ``benchmarks/`` too.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = SRC / "vp2"
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 STAGES: dict[str, int] = {
     "envs": 0,
@@ -147,6 +148,15 @@ def test_no_import_cycles():
 
 def test_no_oversized_source_files():
     big = {m: n for m, p in modules().items() if (n := len(p.read_text().splitlines())) > MAX_LINES}
+    assert not big, f"over {MAX_LINES} lines: {big}"
+
+
+def test_no_oversized_benchmark_scripts():
+    """The size rule holds for ``benchmarks/`` too: every script and module of it."""
+    paths = sorted(BENCHMARKS.rglob("*.py"))
+    assert len(paths) > 10, f"no benchmark scripts found under {BENCHMARKS}"
+    big = {str(p.relative_to(BENCHMARKS.parent)): n for p in paths
+           if (n := len(p.read_text().splitlines())) > MAX_LINES}
     assert not big, f"over {MAX_LINES} lines: {big}"
 
 
