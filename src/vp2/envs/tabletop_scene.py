@@ -6,8 +6,8 @@ A :class:`TabletopScene` is a frozen dataclass of frozen parts -- the objects
 objects start and where pushes may end (:class:`ScenePlacement`), the arm's controller
 (:class:`SceneController`), the benchmark camera (:class:`SceneCamera`), the objects'
 textures (:class:`SceneTextures`) and the render specification -- and the numbers derived from
-them (rest heights, footprints, the table's bounds, the render fingerprint) are computed from
-it, never written twice. :data:`DEFAULT_SCENE` is the benchmark's scene.
+them (rest heights, footprints, the table's bounds, what the render fingerprint hashes) are
+computed from it, never written twice. :data:`DEFAULT_SCENE` is the benchmark's scene.
 
 The world and the environment are built from a scene (``TabletopEnv(task, scene=...)``,
 ``TabletopWorld(scene)``), the default when none is given. A variant is a
@@ -387,18 +387,13 @@ class TabletopScene:
 
     def render_description(self) -> dict[str, Any]:
         """What the tabletop's render fingerprint hashes of the scene: the render spec and the
-        camera's placement (:mod:`vp2.envs.render_specs` adds the env and the render path)."""
+        camera's placement. ``vp2.envs.render_specs.render_fingerprint("tabletop", scene)`` adds
+        the env and the render path's version and hashes it."""
         cam = self.camera
         return {
             "spec": dataclasses.asdict(self.render),
             "camera": {"CAMERA_POS": cam.pos, "CAMERA_LOOKAT": cam.lookat, "CAMERA_FOVY": cam.fovy},
         }
-
-    def render_fingerprint(self) -> str:
-        """The render fingerprint of this scene (:func:`vp2.envs.render_specs.render_fingerprint`)."""
-        from vp2.envs.render_specs import render_fingerprint
-
-        return render_fingerprint("tabletop", scene=self)
 
     # ---- as data ---------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
