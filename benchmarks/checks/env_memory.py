@@ -48,15 +48,18 @@ def _largest_anonymous_mapping() -> int:
 
 def measure(tabletop: int, robodesk: int, arena: str) -> dict[str, object]:
     """Builds the environments in this process and measures it (run in a fresh process)."""
-    import vp2.envs._tabletop_world as world
-    from vp2.envs import make_env
+    import dataclasses
 
+    from vp2.envs import make_env
+    from vp2.envs.tabletop_scene import DEFAULT_SCENE
+
+    scene = DEFAULT_SCENE
     if arena == "robosuite":
-        world.ARENA_SIZE = None
+        scene = dataclasses.replace(DEFAULT_SCENE, solver_arena=None)
     before = _status()
     envs = []
     for i in range(tabletop):
-        env = make_env(f"tabletop/{('push_large_cube', 'push_sphere')[i % 2]}", seed=i)
+        env = make_env(f"tabletop/{('push_large_cube', 'push_sphere')[i % 2]}", seed=i, scene=scene)
         env.reset()
         env.render()
         envs.append(env)
@@ -76,7 +79,7 @@ def measure(tabletop: int, robodesk: int, arena: str) -> dict[str, object]:
         os.waitpid(pid, 0)
         forks = "yes"
     return {
-        "arena": arena if arena == "robosuite" else world.ARENA_SIZE,
+        "arena": arena if arena == "robosuite" else scene.solver_arena,
         "arena_mib": round(envs[0].unwrapped._model.narena / 2**20, 1) if tabletop else None,
         "vmdata_mib": after["VmData"] - before["VmData"],
         "rss_mib": after["VmRSS"] - before["VmRSS"],

@@ -43,7 +43,7 @@ def before_renderer(env) -> Renderer:
 def env_render_spec(env) -> RenderSpec:
     from vp2.envs import robodesk, tabletop
 
-    return robodesk.RENDER_SPEC if env.name.startswith("robodesk") else tabletop.RENDER_SPEC
+    return robodesk.RENDER_SPEC if env.name.startswith("robodesk") else tabletop.DEFAULT_SCENE.render
 
 
 def physics_model(env):

@@ -151,7 +151,7 @@ def tt_render_new() -> Callable[[], None]:
 
 def tt_render_old() -> Callable[[], None]:
     env = tabletop.TabletopEnv("push_large_cube", seed=0, observation_size=None)
-    renderer = Renderer(env._model, previous_spec(tabletop.RENDER_SPEC))
+    renderer = Renderer(env._model, previous_spec(tabletop.DEFAULT_SCENE.render))
     return _render_call(env, _tabletop_states(10), renderer)
 
 
@@ -188,7 +188,7 @@ def tt_robosuite() -> Callable[[], None]:
         model, data = world.sim.model._model, world.sim.data._data
         mujoco.mj_kinematics(model, data)
         mujoco.mj_camlight(model, data)
-        full = Renderer(model, tabletop.RENDER_SPEC.full_quality()).render(data, 64)
+        full = Renderer(model, tabletop.DEFAULT_SCENE.render.full_quality()).render(data, 64)
         mae = mean_abs_error(np.flipud(last["image"]), full)
         return f"robosuite's camera image vs full quality, same state: MAE {mae:.2f}/255"
 
@@ -248,13 +248,13 @@ def fidelity(episodes: int) -> dict[str, dict[str, list[float]]]:
     """MAE of the observation (and of the previous settings) vs full quality, per task."""
     errors: dict[str, dict[str, list[float]]] = {}
     for env_name, tasks in (("robodesk", ROBODESK_TASKS), ("tabletop", TABLETOP_TASKS)):
-        module = robodesk if env_name == "robodesk" else tabletop
+        spec = robodesk.RENDER_SPEC if env_name == "robodesk" else tabletop.DEFAULT_SCENE.render
         for t, task in enumerate(tasks):
             env = make_env(f"{env_name}/{task}", seed=t, observation_size=None)
             model = env.model if env_name == "robodesk" else env._model
             data = env.data if env_name == "robodesk" else env._data
-            full = Renderer(model, module.RENDER_SPEC.full_quality())
-            old = Renderer(model, previous_spec(module.RENDER_SPEC))
+            full = Renderer(model, spec.full_quality())
+            old = Renderer(model, previous_spec(spec))
             rows = errors[f"{env_name}/{task}"] = {"new": [], "previous": []}
             for episode in range(episodes):
                 env.reset(seed=10_000 + 100 * t + episode)
@@ -299,7 +299,7 @@ def main() -> None:
         f"mujoco={mujoco.__version__}  load={load[0]:.1f}  rounds={args.rounds}"
     )
     print(f"# robodesk.RENDER_SPEC = {robodesk.RENDER_SPEC}")
-    print(f"# tabletop.RENDER_SPEC = {tabletop.RENDER_SPEC}")
+    print(f"# tabletop DEFAULT_SCENE.render = {tabletop.DEFAULT_SCENE.render}")
     names = list(VARIANTS)
     together = time_interleaved(names, args.rounds)
     alone = time_subprocesses(names, args.rounds) if not args.skip_subprocess else None

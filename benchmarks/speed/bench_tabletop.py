@@ -49,7 +49,10 @@ from vp2.data.policies.tabletop import make_tabletop_policy  # noqa: E402
 from vp2.envs._tabletop_stepper import LeanStepper  # noqa: E402
 from vp2.envs._tabletop_world import TabletopWorld  # noqa: E402
 from vp2.envs.rendering import Renderer, mean_abs_error  # noqa: E402
-from vp2.envs.tabletop import OBJECT_NAMES, RENDER_SPEC, TabletopEnv  # noqa: E402
+from vp2.envs.tabletop import DEFAULT_SCENE, OBJECT_NAMES, TabletopEnv  # noqa: E402
+
+#: The benchmark scene's render specification.
+RENDER_SPEC = DEFAULT_SCENE.render
 
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 

@@ -20,8 +20,9 @@ same suite instances (states are camera-free; goal images are re-rendered throug
 * **oracle success**: full control trials of the simulator oracle (MPPI at ``--num-samples``,
   seed 0, stop on success), with the pushed object's final and closest distance to its goal.
 
-Each camera runs in its own process (the camera is a constant of the world's model, patched
-before any environment is built), so the package is unchanged by the study. ``--sheet`` writes
+Each camera runs in its own process, on a variant of the tabletop scene
+(:func:`camera_scene`: ``dataclasses.replace`` of ``DEFAULT_SCENE`` with the candidate's camera);
+the environments it builds, the oracle's included, carry that scene in their metadata. ``--sheet`` writes
 one contact sheet row per camera (initial frame and goal image of the first instances).
 """
 
@@ -180,13 +181,17 @@ def must_see_points(suite) -> np.ndarray:
 # ---- one camera (runs in its own process) --------------------------------------------------
 
 
-def use_camera(pos, lookat, fovy: float) -> None:
-    """Patches the world's camera constants before any environment is built."""
-    import vp2.envs._tabletop_world as world
+def camera_scene(pos, lookat, fovy: float):
+    """The default tabletop scene seen through another camera."""
+    from vp2.envs.tabletop_scene import DEFAULT_SCENE
 
-    world.CAMERA_POS = tuple(pos)
-    world.CAMERA_LOOKAT = tuple(lookat)
-    world.CAMERA_FOVY = float(fovy)
+    camera = dataclasses.replace(
+        DEFAULT_SCENE.camera,
+        pos=tuple(float(v) for v in pos),
+        lookat=tuple(float(v) for v in lookat),
+        fovy=float(fovy),
+    )
+    return dataclasses.replace(DEFAULT_SCENE, camera=camera)
 
 
 def segmentation(env, state) -> np.ndarray:
@@ -210,7 +215,7 @@ def segmentation(env, state) -> np.ndarray:
                 labels[g] = 5
         env._seg_labels = labels
     mujoco.mj_forward(model, data)
-    env._seg.update_scene(data, camera="vp2_tabletop")
+    env._seg.update_scene(data, camera=env.scene.camera.name)
     seg = env._seg.render()
     out = np.zeros((SIZE, SIZE), int)
     geom = (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (seg[..., 0] >= 0)
@@ -237,12 +242,12 @@ def measure_camera(args) -> dict:
     from vp2.spec import NUM_FUTURE as HORIZON
 
     pos, lookat = json.loads(args.pose)
-    use_camera(pos, lookat, args.fovy)
+    scene = camera_scene(pos, lookat, args.fovy)
     torch.set_num_threads(1)
     suite = TaskSuite.load()
     rows, sheet = [], []
     for task in TASKS:
-        env = TabletopEnv(task.split("/")[1], observation_size=None)
+        env = TabletopEnv(task.split("/")[1], observation_size=None, scene=scene)
         pushed = OBJECT_NAMES.index(task.split("push_")[1])
         instances = sorted(set(args.instances) | set(args.oracle_instances))
         for index in instances:
@@ -288,7 +293,10 @@ def measure_camera(args) -> dict:
                 start = time.perf_counter()
                 model = SimulatorModel(inst.actions.shape[1])
                 agent = PlanningAgent(model, PlannerConfig(num_samples=args.num_samples))
-                inst_cam = dataclasses.replace(inst, goal_image=goal_image)
+                # The oracle rebuilds its environments from the metadata: this camera's scene.
+                inst_cam = dataclasses.replace(
+                    inst, goal_image=goal_image, env_meta=env.serialize()
+                )
                 result = ControlTrial(inst_cam, agent, seed=0, stop_on_success=True, env=env).run()
                 model.close()
                 # The pushed object's distance to its goal along the trial.

@@ -5,9 +5,10 @@
 
 The camera study (``benchmarks.studies.tabletop_camera_study``) found the arm 86–97% of the
 start-to-goal squared pixel error in every view, and the oracle solving 1–3 of 12 whatever the
-camera. SPEC §1.2 names the four objects, not their sizes. Per scale, in its own process (the
-objects' size tables of ``vp2.envs._tabletop_world`` are scaled in place before any environment
-is built, so the scripted policy, placement and rest heights follow; the package is unchanged):
+camera. SPEC §1.2 names the four objects, not their sizes. Per scale, in its own process, on a
+variant of the tabletop scene (:func:`scaled_scene`: every object's size scaled, so the scripted
+policy, placement and rest heights follow; the instances' metadata, and so the oracle's
+environments, carry that scene):
 
 * instances are generated as the suite generates them (``vp2.data.suite.generate_instance``,
   the suite's seeds, accepted in attempt order; at scale 1 they are the shipped suite's);
@@ -46,26 +47,27 @@ from benchmarks.studies.tabletop_camera_study import TASKS  # noqa: E402
 SIZE = 64
 
 
-def scale_objects(scale: float) -> None:
-    """Scales the tabletop objects' size tables in place (every importer shares the dicts)."""
-    import vp2.envs._tabletop_world as world
+def scaled_scene(scale: float):
+    """The default tabletop scene with every object's size multiplied by ``scale``."""
+    from vp2.envs.tabletop_scene import DEFAULT_SCENE
 
-    for table in (world.OBJECT_SIZES, world.OBJECT_REST_HEIGHT, world.OBJECT_FOOTPRINT):
-        for name, value in list(table.items()):
-            table[name] = (
-                tuple(v * scale for v in value) if isinstance(value, tuple) else value * scale
-            )
+    objects = tuple(
+        dataclasses.replace(obj, size=tuple(v * scale for v in obj.size))
+        for obj in DEFAULT_SCENE.objects
+    )
+    return dataclasses.replace(DEFAULT_SCENE, objects=objects)
 
 
-def instances_at_scale(task: str, count: int):
-    """The first ``count`` accepted instances of ``task``, as ``generate_suite`` accepts them."""
+def instances_at_scale(task: str, count: int, env):
+    """The first ``count`` accepted instances of ``task`` in ``env`` (a scene variant's), as
+    ``generate_suite`` accepts them."""
     from vp2.data.suite import SUITE_SEED, generate_instance, instance_seed
 
     found, attempt = [], 0
     while len(found) < count:
         if attempt > 20 * count:
             raise RuntimeError(f"{task}: only {len(found)} instances in {attempt} attempts")
-        inst = generate_instance(task, instance_seed(SUITE_SEED, task, attempt))
+        inst = generate_instance(task, instance_seed(SUITE_SEED, task, attempt), env=env)
         attempt += 1
         if inst is not None:
             found.append(dataclasses.replace(inst, index=len(found)))
@@ -85,8 +87,7 @@ def measure_scale(args) -> None:
     from benchmarks.studies.tabletop_camera_study import project, segmentation
     from vp2.spec import NUM_FUTURE as HORIZON
 
-    scale_objects(args.scale)
-    import vp2.envs._tabletop_world as world
+    scene = scaled_scene(args.scale)
     from vp2.benchmark.trial import ControlTrial
     from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
     from vp2.models.simulator import SimulatorModel
@@ -99,12 +100,12 @@ def measure_scale(args) -> None:
     done = set()
     if out.exists():
         done = {(r["task"], r["instance"]) for r in map(json.loads, out.read_text().splitlines())}
-    pose = (world.CAMERA_POS, world.CAMERA_LOOKAT, world.CAMERA_FOVY)
+    pose = (scene.camera.pos, scene.camera.lookat, scene.camera.fovy)
     sheet = []
     for task in TASKS:
         pushed = OBJECT_NAMES.index(task.split("push_")[1])
-        insts = instances_at_scale(task, max(args.instances, args.oracle_instances))
-        env = TabletopEnv(task.split("/")[1], observation_size=None)
+        env = TabletopEnv(task.split("/")[1], observation_size=None, scene=scene)
+        insts = instances_at_scale(task, max(args.instances, args.oracle_instances), env)
         for inst in insts:
             env.reset_to(inst.init_state)
             if inst.index == 0:

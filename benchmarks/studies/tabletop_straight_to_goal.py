@@ -21,7 +21,6 @@ import numpy as np  # noqa: E402
 from benchmarks import common  # noqa: E402
 from vp2.data.suite import TRIAL_FREE_ACTIONS, TaskSuite  # noqa: E402
 from vp2.envs import split_name  # noqa: E402
-from vp2.envs._tabletop_world import OSC_OUTPUT_MAX  # noqa: E402
 from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv  # noqa: E402
 
 
@@ -34,7 +33,7 @@ def straight_to_goal_pose(inst) -> bool:
     solved = False
     for _ in range(TRIAL_FREE_ACTIONS):
         delta = rot.T @ (goal_hand - env.end_effector_position())
-        env.step(np.r_[np.clip(delta / OSC_OUTPUT_MAX * 1.5, -1, 1), 1.0])
+        env.step(np.r_[np.clip(delta / env.scene.controller.output_max * 1.5, -1, 1), 1.0])
         solved = solved or env.is_success(inst.goal_state)
     env.close()
     return solved

@@ -19,13 +19,13 @@ Per candidate, over the first ``--instances`` shipped suite instances of each ta
   with the candidate's camera/objects (for the current view it equals the shipped one);
 * the objects' visible size at 64x64 (square root of the visible pixel count in a segmentation
   render of the initial states; median per object) and the geometric width of 5 cm at the
-  centre of ``PLACEMENT_REGION``;
+  centre of ``SCENE.placement.region``;
 * whether the whole table top, every object's start and goal footprint (its bounding box, at
   the candidate's scale) and the arm's wrist/hand/fingers (and the forearm) in the initial and
   goal states project inside the 64x64 image (smallest margin in pixels; negative = cut off),
   and how many object pairs would overlap at that scale;
-* the fidelity of ``RENDER_SPEC`` with that camera: mean absolute error (/255) of the initial
-  frames against ``RENDER_SPEC.full_quality()`` (SPEC §1.3 budget: 8/255), also with the
+* the fidelity of ``SCENE.render`` with that camera: mean absolute error (/255) of the initial
+  frames against ``SCENE.render.full_quality()`` (SPEC §1.3 budget: 8/255), also with the
   floor's (and every other material's) reflectance set to 0;
 * the render time of one 64x64 frame through ``TabletopEnv.render`` (median over
   ``--timing-frames`` frames, candidates interleaved frame by frame so that the machine's load
@@ -52,23 +52,15 @@ import numpy as np  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from benchmarks import common  # noqa: E402
-from vp2.data.policies.tabletop import TARGET_REGION  # noqa: E402
 from vp2.data.suite import TaskSuite  # noqa: E402
 from vp2.envs import ENV_TASKS  # noqa: E402
-from vp2.envs._tabletop_world import (  # noqa: E402
-    CAMERA_FOVY,
-    CAMERA_LOOKAT,
-    CAMERA_NAME,
-    CAMERA_POS,
-    OBJECT_FOOTPRINT,
-    OBJECT_REST_HEIGHT,
-    TABLE_TOP_Z,
-    _look_at_quat,
-)
+from vp2.envs._tabletop_world import _look_at_quat  # noqa: E402
 from vp2.envs.rendering import Renderer, contact_sheet, mean_abs_error  # noqa: E402
-from vp2.envs.tabletop import OBJECT_NAMES, PLACEMENT_REGION, RENDER_SPEC, TabletopEnv  # noqa: E402
+from vp2.envs.tabletop import DEFAULT_SCENE, OBJECT_NAMES, TabletopEnv  # noqa: E402
 
 SIZE = 64
+#: The scene the candidates are compared against (they are applied to its built model).
+SCENE = DEFAULT_SCENE
 #: Arm bodies whose origins must stay in view: the wrist, hand and finger bodies (required) and
 #: the forearm (link5/6 origin, at the elbow end of the forearm; reported separately).
 HAND_BODIES = ("robot0_link7", "robot0_right_hand", "gripper0_right_leftfinger",
@@ -125,28 +117,28 @@ def margin_px(uv: np.ndarray, size: int = SIZE) -> float:
 
 def table_corners(env: TabletopEnv) -> np.ndarray:
     (x0, x1), (y0, y1) = env.table_bounds
-    return np.array([[x, y, TABLE_TOP_Z] for x in (x0, x1) for y in (y0, y1)])
+    return np.array([[x, y, SCENE.table.top_z] for x in (x0, x1) for y in (y0, y1)])
 
 
 def object_boxes(xy: np.ndarray, scale: float) -> np.ndarray:
     """Bounding-box corners ``(4, 8, 3)`` of the four objects with centres ``xy`` ``(4, 2)``."""
     out = []
     for k, name in enumerate(OBJECT_NAMES):
-        r, h = OBJECT_FOOTPRINT[name] * scale, 2 * OBJECT_REST_HEIGHT[name] * scale
-        out.append([[xy[k, 0] + sx * r, xy[k, 1] + sy * r, TABLE_TOP_Z + sz * h]
+        r, h = SCENE.footprints[name] * scale, 2 * SCENE.rest_heights[name] * scale
+        out.append([[xy[k, 0] + sx * r, xy[k, 1] + sy * r, SCENE.table.top_z + sz * h]
                     for sx in (-1, 1) for sy in (-1, 1) for sz in (0, 1)])
     return np.array(out)
 
 
 def region_object_tops(scale: float) -> np.ndarray:
     """Top corners of the largest object anywhere in the target and placement regions."""
-    r = max(OBJECT_FOOTPRINT.values()) * scale
-    h = 2 * max(OBJECT_REST_HEIGHT.values()) * scale
+    r = max(SCENE.footprints.values()) * scale
+    h = 2 * max(SCENE.rest_heights.values()) * scale
     pts = []
-    for (x0, x1), (y0, y1) in (TARGET_REGION, PLACEMENT_REGION):
+    for (x0, x1), (y0, y1) in (SCENE.placement.target_region, SCENE.placement.region):
         for x in (x0 - r, x1 + r):
             for y in (y0 - r, y1 + r):
-                pts.append([x, y, TABLE_TOP_Z + h])
+                pts.append([x, y, SCENE.table.top_z + h])
     return np.array(pts)
 
 
@@ -163,7 +155,7 @@ def fit_camera(elevation: float, fovy: float, required: np.ndarray, margin: floa
     direction = np.array([np.cos(e), 0.0, np.sin(e)])
     best = None
     for lx in lookat_x:
-        lookat = np.array([lx, 0.0, TABLE_TOP_Z])
+        lookat = np.array([lx, 0.0, SCENE.table.top_z])
 
         def ok(dist: float, lookat: np.ndarray = lookat) -> bool:
             return margin_px(project(required, lookat + dist * direction, lookat, fovy)) >= margin
@@ -190,7 +182,7 @@ class Applier:
     def __init__(self, env: TabletopEnv):
         self.env = env
         m = env._model
-        self.cam = m.camera(CAMERA_NAME).id
+        self.cam = m.camera(SCENE.camera.name).id
         self.geoms = np.asarray(env._world.object_visual_geoms)
         self.orig = (m.cam_pos[self.cam].copy(), m.cam_quat[self.cam].copy(),
                      float(m.cam_fovy[self.cam]), m.geom_size[self.geoms].copy(),
@@ -216,7 +208,7 @@ def lifted(state: np.ndarray, positions: np.ndarray, scale: float) -> np.ndarray
     """``state`` with the objects at ``positions``, raised so that scaled objects rest on the table."""
     pos = np.array(positions, np.float64)
     if scale != 1.0:
-        pos[:, 2] += np.array([OBJECT_REST_HEIGHT[n] for n in OBJECT_NAMES]) * (scale - 1.0)
+        pos[:, 2] += np.array([SCENE.rest_heights[n] for n in OBJECT_NAMES]) * (scale - 1.0)
     return TabletopEnv.with_object_positions(state, pos)
 
 
@@ -233,7 +225,7 @@ def _visible_fractions(env: TabletopEnv, seg: mujoco.Renderer, geoms: np.ndarray
                        counts_out: dict | None = None) -> np.ndarray:
     """Per object: visible pixels / pixels it covers when drawn alone (segmentation renders)."""
     m, geom_type = env._model, int(mujoco.mjtObj.mjOBJ_GEOM)
-    seg.update_scene(env._data, camera=CAMERA_NAME)
+    seg.update_scene(env._data, camera=SCENE.camera.name)
     full = seg.render()
     opt = mujoco.MjvOption()
     opt.geomgroup[:] = 0
@@ -243,7 +235,7 @@ def _visible_fractions(env: TabletopEnv, seg: mujoco.Renderer, geoms: np.ndarray
         seen = int(((full[..., 0] == g) & (full[..., 1] == geom_type)).sum())
         group = int(m.geom_group[g])
         m.geom_group[g] = 3
-        seg.update_scene(env._data, camera=CAMERA_NAME, scene_option=opt)
+        seg.update_scene(env._data, camera=SCENE.camera.name, scene_option=opt)
         alone = seg.render()
         m.geom_group[g] = group
         total = int(((alone[..., 0] == g) & (alone[..., 1] == geom_type)).sum())
@@ -256,12 +248,12 @@ def _visible_fractions(env: TabletopEnv, seg: mujoco.Renderer, geoms: np.ndarray
 # ---- evaluation ----------------------------------------------------------------------------
 def evaluate(env: TabletopEnv, applier: Applier, c: Candidate, instances: list) -> dict:
     applier.apply(c)
-    renderer = Renderer(env._model, RENDER_SPEC)
-    full_quality = Renderer(env._model, RENDER_SPEC.full_quality())
+    renderer = Renderer(env._model, SCENE.render)
+    full_quality = Renderer(env._model, SCENE.render.full_quality())
     # The same pair with every material's reflectance set to 0 (the floor's 1% is the only one
-    # visible): the oblique views see the floor, whose reflection RENDER_SPEC does not draw.
-    spec_matte = Renderer(env._model, RENDER_SPEC)
-    full_matte = Renderer(env._model, RENDER_SPEC.full_quality())
+    # visible): the oblique views see the floor, whose reflection SCENE.render does not draw.
+    spec_matte = Renderer(env._model, SCENE.render)
+    full_matte = Renderer(env._model, SCENE.render.full_quality())
     reflectance = env._model.mat_reflectance.copy()
     env._renderer = renderer
     seg = mujoco.Renderer(env._model, SIZE, SIZE)  # reads the (modified) model when drawing
@@ -317,15 +309,15 @@ def evaluate(env: TabletopEnv, applier: Applier, c: Candidate, instances: list) 
         margins["forearm"] = min(margins["forearm"], margin_px(proj(fore_init)),
                                  margin_px(proj(fore_goal)))
         for xy in (start_pos[:, :2], goal_pos[:, :2]):
-            r = np.array([OBJECT_FOOTPRINT[n] for n in OBJECT_NAMES]) * c.scale
+            r = np.array([SCENE.footprints[n] for n in OBJECT_NAMES]) * c.scale
             dist = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
             overlaps += int(np.triu(dist < r[:, None] + r[None], 1).sum())
     margins["table"] = margin_px(project(table_corners(env), c.pos, c.lookat, c.fovy))
     seg.close()
     for r in (full_quality, spec_matte, full_matte):
         r.close()
-    (x0, x1), (y0, y1) = PLACEMENT_REGION
-    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, TABLE_TOP_Z])
+    (x0, x1), (y0, y1) = SCENE.placement.region
+    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, SCENE.table.top_z])
     uv_y = project(np.array([centre - [0, 0.025, 0], centre + [0, 0.025, 0]]), c.pos, c.lookat,
                    c.fovy)
     uv_x = project(np.array([centre - [0.025, 0, 0], centre + [0.025, 0, 0]]), c.pos, c.lookat,
@@ -394,7 +386,7 @@ def candidates(env: TabletopEnv, instances: list) -> list[Candidate]:
         pos, lookat = fit_camera(elevation, fovy, required(scale))
         return Candidate(name, pos, lookat, fovy, scale, note)
 
-    cur = Candidate("C0 current", CAMERA_POS, CAMERA_LOOKAT, CAMERA_FOVY, 1.0, "shipped view")
+    cur = Candidate("C0 current", SCENE.camera.pos, SCENE.camera.lookat, SCENE.camera.fovy, 1.0, "shipped view")
     return [
         cur,
         fitted("C1 84deg fovy45", 84.0, 45.0, note="current elevation, closer, wider fovy"),

@@ -29,7 +29,7 @@ from vp2.benchmark.shipped_oracle import (
     load_shipped_oracle,
     summarize_run,
 )
-from vp2.envs import _tabletop_world
+from vp2.envs import tabletop_scene
 from vp2.envs.render_specs import render_fingerprint
 from vp2.planning.config import PlannerConfig
 from vp2.report.page import write_report
@@ -98,7 +98,9 @@ def test_a_run_at_a_budget_without_a_table_says_so_once(asset):
 def test_a_table_rendered_with_another_camera_is_not_used(asset, monkeypatch):
     oracle = load_shipped_oracle()
     before = render_fingerprint("tabletop")
-    monkeypatch.setattr(_tabletop_world, "CAMERA_POS", (1.0, 0.0, 4.0))
+    default = tabletop_scene.DEFAULT_SCENE
+    moved = dataclasses.replace(default.camera, pos=(1.0, 0.0, 4.0))
+    monkeypatch.setattr(tabletop_scene, "DEFAULT_SCENE", dataclasses.replace(default, camera=moved))
     summary = summarize_run(model_records({(0, 0): True}), shipped=oracle)
     assert summary.normalised is None
     assert summary.oracle_note == (

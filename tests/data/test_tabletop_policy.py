@@ -7,8 +7,8 @@ import pytest
 
 from vp2.data.policies import TABLETOP_NOISE, make_task_policy
 from vp2.data.policies.base import NoisyPolicy
-from vp2.data.policies.tabletop import PUSH_DISTANCE, TARGET_REGION, make_tabletop_policy
-from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
+from vp2.data.policies.tabletop import PUSH_DISTANCE, make_tabletop_policy
+from vp2.envs.tabletop import DEFAULT_SCENE, OBJECT_NAMES, TabletopEnv
 
 
 @pytest.fixture(scope="module")
@@ -18,7 +18,7 @@ def env():
 
 
 def test_plan_and_goal(env):
-    (x0, x1), (y0, y1) = TARGET_REGION
+    (x0, x1), (y0, y1) = DEFAULT_SCENE.placement.target_region
     objects = set()
     for seed in range(8):
         env.reset(seed=seed)

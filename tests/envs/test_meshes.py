@@ -155,7 +155,9 @@ def test_unwritable_cache_falls_back_to_memory(tmp_path):
 
 def test_tabletop_render_model():
     """The tabletop's robosuite Panda: same path equivalence, fidelity, physics untouched."""
-    from vp2.envs.tabletop import RENDER_SPEC, TabletopEnv
+    from vp2.envs.tabletop import DEFAULT_SCENE, TabletopEnv
+
+    spec = DEFAULT_SCENE.render
 
     env = TabletopEnv("push_sphere", seed=0, observation_size=None)
     env.reset(seed=3)
@@ -166,13 +168,13 @@ def test_tabletop_render_model():
     same = meshes.simplified_render_model(
         mujoco.MjSpec.from_string(env._world.compiled_xml), target_reduction=0.0
     )
-    via_copy = Renderer(model, RENDER_SPEC, render_model=same)
-    direct = Renderer(model, RENDER_SPEC)
+    via_copy = Renderer(model, spec, render_model=same)
+    direct = Renderer(model, spec)
     image = env.render(64)  # through the simplified render model
     mujoco.mj_kinematics(model, data)
     mujoco.mj_camlight(model, data)
     assert np.array_equal(via_copy.render(data, 64), direct.render(data, 64))
-    full = Renderer(model, RENDER_SPEC.full_quality())
+    full = Renderer(model, spec.full_quality())
     assert mean_abs_error(image, full.render(data, 64)) <= 8.0
     assert model.nmeshface == faces
     simple = env._renderer._render_model

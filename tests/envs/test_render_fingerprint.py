@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from vp2.envs import _robodesk_model, _tabletop_world, rendering
+from vp2.envs import _robodesk_model, rendering, tabletop_scene
 from vp2.envs.render_specs import render_description, render_fingerprint, render_fingerprints
 
 
@@ -28,12 +28,18 @@ def test_the_same_in_another_process():
 
 def test_moves_with_the_camera_the_spec_and_the_render_path(monkeypatch):
     tabletop, robodesk = render_fingerprint("tabletop"), render_fingerprint("robodesk")
-    assert render_description("tabletop")["camera"]["CAMERA_FOVY"] == _tabletop_world.CAMERA_FOVY
-    monkeypatch.setattr(_tabletop_world, "CAMERA_POS", (2.0, 0.0, 3.0))
-    moved = render_fingerprint("tabletop")
-    assert moved != tabletop and render_fingerprint("robodesk") == robodesk
+    default = tabletop_scene.DEFAULT_SCENE
+    assert render_description("tabletop")["camera"]["CAMERA_FOVY"] == default.camera.fovy
+    moved_camera = dataclasses.replace(default.camera, pos=(2.0, 0.0, 3.0))
+    other = dataclasses.replace(default, camera=moved_camera)
+    moved = render_fingerprint("tabletop", scene=other)
+    assert moved != tabletop
+    assert render_fingerprint("robodesk") == robodesk
+    assert render_fingerprint("tabletop") == tabletop == render_fingerprint("tabletop", default)
+    # The package's own fingerprint is its default scene's.
+    monkeypatch.setattr(tabletop_scene, "DEFAULT_SCENE", other)
+    assert render_fingerprint("tabletop") == moved
     monkeypatch.undo()
-    assert render_fingerprint("tabletop") == tabletop
     monkeypatch.setattr(_robodesk_model, "RENDER_SPEC",
                         dataclasses.replace(_robodesk_model.RENDER_SPEC, shadow_size=1024))
     assert render_fingerprint("robodesk") != robodesk

@@ -13,18 +13,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from vp2.data.policies.tabletop import TARGET_REGION
 from vp2.envs import make_env_from_metadata
 from vp2.envs._tabletop_stepper import LeanStepper
-from vp2.envs._tabletop_world import TABLE_TOP_Z, TabletopWorld
-from vp2.envs.tabletop import (
-    OBJECT_NAMES,
-    PLACEMENT_REGION,
-    RENDER_SPEC,
-    SUCCESS_THRESHOLD,
-    TEXTURE_NAMES,
-    TabletopEnv,
-)
+from vp2.envs._tabletop_world import TabletopWorld
+from vp2.envs.tabletop import DEFAULT_SCENE, OBJECT_NAMES, SUCCESS_THRESHOLD, TabletopEnv
+
+PLACEMENT_REGION = DEFAULT_SCENE.placement.region
+TARGET_REGION = DEFAULT_SCENE.placement.target_region
+TEXTURE_NAMES = DEFAULT_SCENE.textures.names
 
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 
@@ -238,7 +234,7 @@ def _project(env: TabletopEnv, points: np.ndarray, size: int = 64) -> np.ndarray
     """Pixel coordinates (u right, v down) of world points in the benchmark camera."""
     m, d = env._model, env._data
     mujoco.mj_kinematics(m, d)
-    cam = m.camera(RENDER_SPEC.camera).id
+    cam = m.camera(env.scene.render.camera).id
     pos, rot = d.cam_xpos[cam], d.cam_xmat[cam].reshape(3, 3)
     local = (np.asarray(points) - pos) @ rot  # camera frame: x right, y up, looking along -z
     f = size / 2 / np.tan(np.radians(m.cam_fovy[cam]) / 2)
@@ -249,7 +245,7 @@ def _project(env: TabletopEnv, points: np.ndarray, size: int = 64) -> np.ndarray
 
 def test_camera_sees_the_whole_table_and_large_objects(env):
     (x0, x1), (y0, y1) = env.table_bounds
-    corners = np.array([[x, y, TABLE_TOP_Z] for x in (x0, x1) for y in (y0, y1)])
+    corners = np.array([[x, y, env.scene.table.top_z] for x in (x0, x1) for y in (y0, y1)])
     uv = _project(env, corners)
     assert np.all((uv >= 0) & (uv <= 64)), uv
     # The table fills the image's width: a 5 cm object anywhere in the placement region is

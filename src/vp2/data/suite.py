@@ -254,16 +254,24 @@ def _env(task: str) -> Env:
     return _ENVS.get_or_make(task, lambda: make_env(task, observation_size=None))
 
 
-def generate_instance(task: str, seed: int, index: int = -1) -> TaskInstance | None:
+def generate_instance(
+    task: str, seed: int, index: int = -1, env: Env | None = None
+) -> TaskInstance | None:
     """Tries to make one instance from ``seed``; ``None`` if it is rejected.
 
     Runs the noise-free scripted policy from a randomised reset (module docstring) and takes
     the initial state ``L`` actions before its first success. Rejected when the policy does not
     succeed within :data:`HORIZON` steps, or when the initial state already succeeds.
+
+    ``env``: the environment of ``task`` to run in (e.g. one built from another tabletop scene;
+    its metadata goes into the instance); default: this process's cached default build.
     """
     from vp2.data.policies import make_task_policy
 
-    env = _env(task)
+    if env is None:
+        env = _env(task)
+    elif env.name != task:
+        raise ValueError(f"generate_instance: the env is {env.name!r}, not the task {task!r}")
     reset_seed, policy_seed, lookback_seed = np.random.SeedSequence(seed).generate_state(3)
     lookback = int(np.random.default_rng(lookback_seed).integers(LOOKBACK_RANGE[0], LOOKBACK_RANGE[1] + 1))
     env.reset(seed=int(reset_seed))

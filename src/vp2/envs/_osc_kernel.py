@@ -70,14 +70,15 @@ def osc_torques(
     jacp_c, jacr_c, jacp_r, jacr_r,
     qpos_index, qvel_index,
     origin_pos, origin_ori, ref_pos, ref_ori,
-    goal_pos, goal_ori, kp_pos, kd_pos, kp_ori, kd_ori, initial_joint, out,
+    goal_pos, goal_ori, kp_pos, kd_pos, kp_ori, kd_ori, joint_kp, initial_joint, out,
 ):  # fmt: skip
     """Arm torques of robosuite's OSC (position, fixed impedance, "base" input frame).
 
     ``jacp_c``/``jacr_c`` are the translational/rotational Jacobians (3 x nv) of the arm's base
     ("center") site, ``jacp_r``/``jacr_r`` those of the end-effector site; ``origin_*`` and
     ``ref_*`` the two sites' world positions (3) and orientation matrices (3 x 3);
-    ``full_mass`` is ``mj_fullM``'s nv x nv matrix. Writes the torques (before actuator
+    ``full_mass`` is ``mj_fullM``'s nv x nv matrix; ``joint_kp`` the stiffness of the nullspace
+    pull towards ``initial_joint`` (robosuite's ``nullspace_torques`` uses 10). Writes the torques (before actuator
     clipping) into ``out`` (7).
     """
     nv = qvel.shape[0]
@@ -179,8 +180,8 @@ def osc_torques(
             for k in range(6):
                 s += x[i, k] * z[k, j]
             null[i, j] = (1.0 if i == j else 0.0) - s
-    # nullspace_torques (joint_kp = 10): N' M (kp (q0 - q) - kv qdot).
-    kp = 10.0
+    # nullspace_torques (robosuite: joint_kp = 10): N' M (kp (q0 - q) - kv qdot).
+    kp = joint_kp
     kv = math.sqrt(kp) * 2
     v = np.empty(n)
     for i in range(n):

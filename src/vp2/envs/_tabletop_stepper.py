@@ -86,6 +86,7 @@ class LeanStepper:
         self._jacp_c = np.zeros((3, nv))
         self._jacr_c = np.zeros((3, nv))
         self._torques = np.zeros(len(self._qvel_index))
+        self._nullspace_kp = float(world.scene.controller.nullspace_kp)
         start, end = self.composite._action_split_indexes[self.osc.part_name]
         self._arm_action = slice(start, end)
         start, end = self.composite._action_split_indexes["right_gripper"]
@@ -183,6 +184,6 @@ class LeanStepper:
             d.site_xpos[self._center_site], d.site_xmat[self._center_site].reshape(3, 3),
             d.site_xpos[self._ref_site], d.site_xmat[self._ref_site].reshape(3, 3),
             goal_pos, goal_ori, self._kp_pos, self._kd_pos, self._kp_ori, self._kd_ori,
-            self.osc.initial_joint, self._torques,
+            self._nullspace_kp, self.osc.initial_joint, self._torques,
         )  # fmt: skip
         return self._torques

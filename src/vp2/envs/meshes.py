@@ -52,7 +52,7 @@ __all__ = [
 ]
 
 #: Fraction of the triangles removed from each simplified mesh when not given (each
-#: environment's ``RENDER_SPEC.mesh_reduction`` is chosen by measurement, see
+#: environment's render spec's ``mesh_reduction`` is chosen by measurement, see
 #: ``benchmarks/speed/bench_render_floor.py``).
 DEFAULT_TARGET_REDUCTION = 0.9
 #: Meshes with fewer triangles than this are left as they are (not worth it).

@@ -2,15 +2,16 @@
 
 The render fingerprint names what turns an environment's simulator state into pixels: its
 :class:`~vp2.envs.rendering.RenderSpec` (camera, crop, quality knobs), for the tabletop the
-benchmark camera's constants in :mod:`vp2.envs._tabletop_world` (its spec names the camera,
-the constants place it), and :data:`~vp2.envs.rendering.RENDER_PATH_VERSION`. A shipped oracle
+benchmark camera's placement (the spec names the camera, the scene places it; both are read
+from the :class:`~vp2.envs.tabletop_scene.TabletopScene`, the default scene unless one is
+given), and :data:`~vp2.envs.rendering.RENDER_PATH_VERSION`. A shipped oracle
 table records the fingerprint of every environment it ran on, and a run is normalised by a
 table only where its environment's fingerprint is this package's
 (:mod:`vp2.benchmark.shipped_oracle`): an oracle that planned on other images measured another
 benchmark.
 
-Computing it builds no environment: it reads module constants (importing the environment
-modules, which for the tabletop imports robosuite).
+Computing it builds no environment: it reads the RoboDesk module's constant (importing it) and
+the tabletop scene value (no simulator).
 """
 
 from __future__ import annotations
@@ -19,48 +20,51 @@ import dataclasses
 import hashlib
 import importlib
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from vp2.envs.tasks import ENV_NAMES
 
-#: Module of each environment's ``RENDER_SPEC``.
-_SPEC_MODULES: dict[str, str] = {
-    "robodesk": "vp2.envs._robodesk_model",
-    "tabletop": "vp2.envs.tabletop",
-}
-#: Camera constants of the tabletop's named camera, read at call time.
-_TABLETOP_CAMERA = ("CAMERA_POS", "CAMERA_LOOKAT", "CAMERA_FOVY")
+if TYPE_CHECKING:
+    from vp2.envs.tabletop_scene import TabletopScene
+
+#: Module of the RoboDesk ``RENDER_SPEC`` (the tabletop's is its scene's ``render``).
+_ROBODESK_SPEC_MODULE = "vp2.envs._robodesk_model"
 #: Hex digits of a fingerprint.
 FINGERPRINT_LENGTH = 16
 
 
-def render_description(env: str) -> dict[str, Any]:
+def render_description(env: str, scene: TabletopScene | None = None) -> dict[str, Any]:
     """What the fingerprint of ``env`` hashes, as plain data.
 
+    Args:
+        env: ``"robodesk"`` or ``"tabletop"``.
+        scene: the tabletop scene (default: :data:`~vp2.envs.tabletop_scene.DEFAULT_SCENE`);
+            only for the tabletop.
+
     Raises:
-        ValueError: an unknown environment.
+        ValueError: an unknown environment, or a scene for another environment.
     """
-    if env not in _SPEC_MODULES:
+    if env not in ENV_NAMES:
         raise ValueError(f"unknown environment {env!r}; known: {', '.join(ENV_NAMES)}")
+    if scene is not None and env != "tabletop":
+        raise ValueError(f"a scene describes the tabletop only; {env!r} has none")
     from vp2.envs import rendering
 
-    spec = importlib.import_module(_SPEC_MODULES[env]).RENDER_SPEC
-    out: dict[str, Any] = {
-        "env": env,
-        "render_path_version": rendering.RENDER_PATH_VERSION,
-        "spec": dataclasses.asdict(spec),
-    }
+    out: dict[str, Any] = {"env": env, "render_path_version": rendering.RENDER_PATH_VERSION}
     if env == "tabletop":
-        from vp2.envs import _tabletop_world
+        from vp2.envs.tabletop_scene import resolve_scene
 
-        out["camera"] = {name: getattr(_tabletop_world, name) for name in _TABLETOP_CAMERA}
+        out.update(resolve_scene(scene).render_description())
+    else:
+        out["spec"] = dataclasses.asdict(importlib.import_module(_ROBODESK_SPEC_MODULE).RENDER_SPEC)
     return out
 
 
-def render_fingerprint(env: str) -> str:
+def render_fingerprint(env: str, scene: TabletopScene | None = None) -> str:
     """A short hash (16 hex digits) of ``env``'s render specification
-    (:func:`render_description` as canonical JSON: sorted keys, no spaces)."""
-    text = json.dumps(render_description(env), sort_keys=True, separators=(",", ":"))
+    (:func:`render_description` as canonical JSON: sorted keys, no spaces); ``scene``: the
+    tabletop scene (default: the benchmark's)."""
+    text = json.dumps(render_description(env, scene), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:FINGERPRINT_LENGTH]
 
 

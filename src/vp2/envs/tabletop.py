@@ -2,9 +2,12 @@
 
 SPEC §1.2. The scene is a robosuite table arena with a Panda arm driven by robosuite's
 operational-space *position* controller (orientation held) and gripper controller, and four
-objects: a large cube, a small cube, a cylinder and a sphere. Every reset draws a texture for
-each object from a fixed set of 13 (:data:`TEXTURE_NAMES`), non-overlapping object positions in
-front of the arm, and a little arm joint noise, all from the environment's own generator.
+objects: a large cube, a small cube, a cylinder and a sphere. Every number of the scene (object
+sizes and frictions, the table, the arm's pose, placement ranges, controller gains and rate, the
+camera, the render spec) is one value, a :class:`~vp2.envs.tabletop_scene.TabletopScene`
+(default :data:`~vp2.envs.tabletop_scene.DEFAULT_SCENE`, the numbers below). Every reset draws
+a texture for each object from the scene's set of 13, non-overlapping object positions in front
+of the arm, and a little arm joint noise, all from the environment's own generator.
 
 Action (4-D, in ``[-1, 1]``; outside values are clipped, see :meth:`Env.check_action`):
 ``(dx, dy, dz, gripper)``. ``dx, dy, dz`` move the end-effector goal by up to 5 cm per control
@@ -22,14 +25,14 @@ State vector (:meth:`TabletopEnv.get_state`), ``float64``::
     [ mj_getState(mjSTATE_INTEGRATION) | texture ids (4) | gripper command (2) | OSC q0 (7) ]
 
 The first block is MuJoCo's full integration state (time, qpos, qvel, warm start, ctrl, ...);
-the texture ids index :data:`TEXTURE_NAMES`; the last 9 numbers are the controller state that
+the texture ids index the scene's ``textures.names``; the last 9 numbers are the controller state that
 robosuite keeps between steps (see :class:`vp2.envs._tabletop_stepper.LeanStepper`).
 Restoring a state and replaying actions is bit-identical, also in a fresh process.
 
 Speed: a control step does not go through robosuite's ``env.step`` but through
 :class:`~vp2.envs._tabletop_stepper.LeanStepper`, which performs the same arithmetic without
 robosuite's per-physics-step bookkeeping (bit-identical results, several times faster); images
-come from the shared :class:`~vp2.envs.rendering.Renderer` with :data:`RENDER_SPEC`. See
+come from the shared :class:`~vp2.envs.rendering.Renderer` with the scene's ``render`` spec. See
 ``docs/measurements.md`` for the measurements.
 """
 
@@ -42,83 +45,24 @@ import mujoco
 import numpy as np
 
 from vp2.envs._tabletop_stepper import LeanStepper
-from vp2.envs._tabletop_world import (
-    CAMERA_NAME,
-    OBJECT_FOOTPRINT,
-    OBJECT_NAMES,
-    OBJECT_REST_HEIGHT,
-    TABLE_CENTER_X,
-    TABLE_FULL_SIZE,
-    TABLE_TOP_Z,
-    TEXTURE_NAMES,
-    TabletopWorld,
-)
+from vp2.envs._tabletop_world import TabletopWorld
 from vp2.envs.base import Env
-from vp2.envs.rendering import SOFTWARE_RENDERING, Renderer, RenderSpec
+from vp2.envs.rendering import Renderer
+from vp2.envs.tabletop_scene import DEFAULT_SCENE, OBJECT_NAMES, TabletopScene, resolve_scene
 from vp2.envs.tasks import TABLETOP_TASKS, get_task
 from vp2.utils.fixedmath import rows_norm
 
 __all__ = [
-    "ARM_INIT_NOISE",
-    "ARM_INIT_OFFSET",
+    "DEFAULT_SCENE",
     "OBJECT_NAMES",
-    "PLACEMENT_REGION",
-    "RENDER_SPEC",
     "SUCCESS_THRESHOLD",
-    "TEXTURE_NAMES",
     "TabletopEnv",
+    "TabletopScene",
 ]
-
-#: The benchmark camera's render specification. The quality knobs were chosen by measurement
-#: (``benchmarks/speed/bench_tabletop.py``, ``benchmarks/speed/bench_render_floor.py``,
-#: docs/measurements.md):
-#: the arena's only light casts no shadow, so no shadow pass is drawn (a small shadow map saves
-#: GL memory); the floor's 1% reflectance would re-render the whole scene for no visible
-#: effect from this camera; multisampling costs more than half of the render time on a
-#: software rasteriser. The frame is then geometry-bound (the Panda's and its pedestal's
-#: visual meshes, 168k triangles), so the renderer draws a render-only model with those meshes
-#: decimated by 70% (``mesh_reduction=0.7``; 80% and more visibly facets the base's rings and
-#: costs ~0.5-1.6/255), the floor tessellated into 0.5 m squares and the built-in primitives
-#: more coarsely; the physics model is untouched. Mean absolute error against
-#: ``RENDER_SPEC.full_quality()`` (original meshes) at 64x64: 6.46/255 on average, 7.15/255 at
-#: most over 56 varied states (budget 8/255); 5.0 ms per frame vs 13.1 ms with the original
-#: meshes (2026-11-24, load ~4). See docs/measurements.md.
-RENDER_SPEC = RenderSpec(
-    camera=CAMERA_NAME,
-    shadow_size=256,
-    shadow_lights=(),
-    skybox=False,
-    mesh_reduction=0.7,
-    **SOFTWARE_RENDERING,
-)
 
 #: Success threshold on the largest object displacement from the goal (metres), SPEC §1.2.
 SUCCESS_THRESHOLD = 0.05
 
-#: Region of the table (world x, y ranges, metres) where objects start: in front of the arm
-#: (its base is at x = -0.56), within comfortable reach at table height, and shifted to the
-#: right (-y) because the scripted pushes go left (directions in [0, pi]) and must stay on the
-#: table (whose top spans x in [-0.37, 0.21], y in [-0.32, 0.32]).
-PLACEMENT_REGION: tuple[tuple[float, float], tuple[float, float]] = ((-0.22, 0.1), (-0.26, 0.09))
-#: Minimum free gap between two objects' footprints at reset (metres).
-PLACEMENT_GAP = 0.03
-#: Standard deviation of the Gaussian noise added to the arm's initial joint angles (radians),
-#: robosuite's own default for the Panda.
-ARM_INIT_NOISE = 0.02
-
-#: Change of the arm's initial pose from robosuite's default Panda pose (radians, joints 1-7).
-#: In robosuite's pose the hand hangs over the middle of the placement region, where the nearly
-#: overhead camera sees nothing of the objects under it (about 14% of the objects were hidden at
-#: reset). Bending the shoulder and elbow back (the wrist turned by as much, so the hand keeps
-#: its orientation) retracts the grip site from x = -0.10 to x = -0.22 at the same height: over
-#: the back edge of the placement region, where the hand hides no object.
-ARM_INIT_OFFSET = np.array([0.0, -0.1, 0.0, -0.35, 0.0, 0.25, 0.0])
-# The initial arm pose (before noise) and the gripper's open finger positions.
-_ARM_INIT_QPOS = (
-    np.array([0.0, np.pi / 16.0, 0.0, -np.pi / 2.0 - np.pi / 3.0, 0.0, np.pi - 0.2, np.pi / 4])
-    + ARM_INIT_OFFSET
-)
-_GRIPPER_INIT_QPOS = np.array([0.020833, -0.020833])
 _STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 # Layout facts of the model (checked against the built model in __init__), so that object
 # positions can be read out of a state vector without building an environment.
@@ -139,17 +83,26 @@ class TabletopEnv(Env):
         seed: seed of the environment's generator (initial states of ``reset()``).
         observation_size: side of the square RGB observation returned by ``reset``/``step``;
             ``None`` returns no observation (faster when only states are needed).
+        scene: the scene (:class:`~vp2.envs.tabletop_scene.TabletopScene`, or its ``to_dict()``
+            from metadata); ``None`` is :data:`~vp2.envs.tabletop_scene.DEFAULT_SCENE`.
     """
 
     action_dim = 4
     #: Index of the object the task pushes (into :data:`OBJECT_NAMES`), set per instance.
     target_object: int
 
-    def __init__(self, task: str, seed: int | None = None, observation_size: int | None = 64):
+    def __init__(
+        self,
+        task: str,
+        seed: int | None = None,
+        observation_size: int | None = 64,
+        scene: TabletopScene | dict[str, Any] | None = None,
+    ):
         if task not in TABLETOP_TASKS:
             raise ValueError(f"unknown tabletop task {task!r}; known: {', '.join(TABLETOP_TASKS)}")
         if observation_size is not None and int(observation_size) <= 0:
             raise ValueError(f"observation_size must be positive or None, got {observation_size}")
+        self.scene = resolve_scene(scene)
         self.task = task
         self.name = f"tabletop/{task}"
         self.seed = seed
@@ -158,7 +111,7 @@ class TabletopEnv(Env):
         self._rng = np.random.default_rng(seed)
         self._goal_state: np.ndarray | None = None
 
-        self._world = TabletopWorld()
+        self._world = TabletopWorld(self.scene)
         self._stepper = LeanStepper(self._world)
         self._model: mujoco.MjModel = self._world.sim.model._model
         self._data: mujoco.MjData = self._world.sim.data._data
@@ -168,8 +121,8 @@ class TabletopEnv(Env):
         self._renderer: Renderer | None = None
         # A valid, deterministic state before the first reset (textures 0-3, a fixed layout).
         self._set_initial_state(
-            arm_qpos=_ARM_INIT_QPOS,
-            object_xy=np.array([[-0.1, -0.15], [-0.1, 0.15], [0.05, -0.1], [0.05, 0.1]]),
+            arm_qpos=self.scene.robot.init_qpos,
+            object_xy=np.array(self.scene.placement.initial_layout),
             object_yaw=np.zeros(len(OBJECT_NAMES)),
             textures=np.arange(len(OBJECT_NAMES)),
         )
@@ -200,27 +153,28 @@ class TabletopEnv(Env):
         """
         if seed is not None:
             self._rng = np.random.default_rng(seed)
-        rng = self._rng
-        textures = rng.choice(len(TEXTURE_NAMES), size=len(OBJECT_NAMES), replace=False)
-        arm_qpos = _ARM_INIT_QPOS + ARM_INIT_NOISE * rng.standard_normal(7)
+        rng, scene = self._rng, self.scene
+        textures = rng.choice(len(scene.textures.names), size=len(OBJECT_NAMES), replace=False)
+        arm_qpos = scene.robot.init_qpos + scene.robot.init_noise * rng.standard_normal(7)
         object_xy = self._sample_placement(rng)
-        object_yaw = rng.uniform(0.0, 2.0 * np.pi, size=len(OBJECT_NAMES))
+        yaw0, yaw1 = scene.placement.yaw_range
+        object_yaw = rng.uniform(yaw0, yaw1, size=len(OBJECT_NAMES))
         self._set_initial_state(arm_qpos, object_xy, object_yaw, textures)
         obs = self._observation()
         return obs, {"textures": self.texture_names(), "success": self.is_success()}
 
-    @staticmethod
-    def _sample_placement(rng: np.random.Generator) -> np.ndarray:
-        """Non-overlapping object positions in :data:`PLACEMENT_REGION`, shape ``(4, 2)``."""
-        (x0, x1), (y0, y1) = PLACEMENT_REGION
-        radii = np.array([OBJECT_FOOTPRINT[name] for name in OBJECT_NAMES])
-        for _ in range(1000):
+    def _sample_placement(self, rng: np.random.Generator) -> np.ndarray:
+        """Non-overlapping object positions in the scene's placement region, shape ``(4, 2)``."""
+        placement = self.scene.placement
+        (x0, x1), (y0, y1) = placement.region
+        radii = np.array([obj.footprint for obj in self.scene.objects])
+        for _ in range(placement.max_draws):
             xy = np.stack(
                 [rng.uniform(x0, x1, len(OBJECT_NAMES)), rng.uniform(y0, y1, len(OBJECT_NAMES))],
                 axis=1,
             )
             dist = rows_norm(xy[:, None] - xy[None])
-            need = radii[:, None] + radii[None] + PLACEMENT_GAP
+            need = radii[:, None] + radii[None] + placement.gap
             np.fill_diagonal(need, 0.0)
             if np.all(dist >= need):
                 return xy
@@ -236,14 +190,11 @@ class TabletopEnv(Env):
         m, d = self._model, self._data
         mujoco.mj_resetData(m, d)
         d.qpos[list(_ARM_QPOS_ADR)] = arm_qpos
-        d.qpos[list(_GRIPPER_QPOS_ADR)] = _GRIPPER_INIT_QPOS
-        for k, name in enumerate(OBJECT_NAMES):
+        d.qpos[list(_GRIPPER_QPOS_ADR)] = np.array(self.scene.robot.gripper_qpos)
+        top_z = self.scene.table.top_z
+        for k, obj in enumerate(self.scene.objects):
             adr = _OBJECT_QPOS_ADR[k]
-            d.qpos[adr : adr + 3] = (
-                object_xy[k, 0],
-                object_xy[k, 1],
-                TABLE_TOP_Z + OBJECT_REST_HEIGHT[name],
-            )
+            d.qpos[adr : adr + 3] = (object_xy[k, 0], object_xy[k, 1], top_z + obj.rest_height)
             half_yaw = float(object_yaw[k]) / 2
             d.qpos[adr + 3 : adr + 7] = (math.cos(half_yaw), 0.0, 0.0, math.sin(half_yaw))
         mujoco.mj_forward(m, d)
@@ -252,13 +203,14 @@ class TabletopEnv(Env):
 
     def _set_textures(self, textures: np.ndarray) -> None:
         textures = np.asarray(textures).astype(np.int64)
+        n_textures = len(self.scene.textures.names)
         if (
             textures.shape != (len(OBJECT_NAMES),)
             or np.any(textures < 0)
-            or np.any(textures >= len(TEXTURE_NAMES))
+            or np.any(textures >= n_textures)
         ):
             raise ValueError(
-                f"texture ids must be {len(OBJECT_NAMES)} integers in [0, {len(TEXTURE_NAMES)}), got {textures.tolist()}"
+                f"texture ids must be {len(OBJECT_NAMES)} integers in [0, {n_textures}), got {textures.tolist()}"
             )
         self._textures = textures.copy()
         self._world.set_textures(self._textures)
@@ -309,12 +261,11 @@ class TabletopEnv(Env):
         return self.render(self.observation_size)
 
     def render(self, height: int = 64, width: int | None = None) -> np.ndarray:
-        """Renders the benchmark camera with :data:`RENDER_SPEC`, ``uint8 (height, width, 3)``."""
+        """Renders the benchmark camera with the scene's render spec, ``uint8 (height, width, 3)``."""
         if self._renderer is None:
+            spec = self.scene.render
             self._renderer = Renderer(
-                self._model,
-                RENDER_SPEC,
-                render_model=self._world.render_model(RENDER_SPEC.mesh_reduction),
+                self._model, spec, render_model=self._world.render_model(spec.mesh_reduction)
             )
         # After mj_step the kinematics lag the integrated qpos by one physics step; recompute
         # them so that an image is a function of the state alone (re-rendering a saved state
@@ -391,21 +342,26 @@ class TabletopEnv(Env):
     # ---- metadata --------------------------------------------------------------------------
     def texture_names(self) -> dict[str, str]:
         """The current texture of every object, ``{object name: texture name}``."""
-        return {
-            obj: TEXTURE_NAMES[int(t)] for obj, t in zip(OBJECT_NAMES, self._textures, strict=True)
-        }
+        names = self.scene.textures.names
+        return {obj: names[int(t)] for obj, t in zip(OBJECT_NAMES, self._textures, strict=True)}
 
     def serialize(self) -> dict[str, Any]:
         """``{"name", "kwargs"}`` for :func:`vp2.envs.make_env_from_metadata`, plus the textures.
 
+        A scene other than :data:`~vp2.envs.tabletop_scene.DEFAULT_SCENE` is recorded as
+        ``kwargs["scene"]`` (:meth:`TabletopScene.to_dict`); the default scene is not recorded,
+        so the metadata of a default environment is what it was before scenes were values.
         The texture assignment is part of the state vector (so ``reset_to`` restores it);
         ``"textures"`` and ``"texture_set"`` are informational (what the ids mean).
         """
+        kwargs: dict[str, Any] = {"seed": self.seed, "observation_size": self.observation_size}
+        if self.scene != DEFAULT_SCENE:
+            kwargs["scene"] = self.scene.to_dict()
         return {
             "name": self.name,
-            "kwargs": {"seed": self.seed, "observation_size": self.observation_size},
+            "kwargs": kwargs,
             "textures": self.texture_names(),
-            "texture_set": list(TEXTURE_NAMES),
+            "texture_set": list(self.scene.textures.names),
         }
 
     def close(self) -> None:
@@ -416,5 +372,4 @@ class TabletopEnv(Env):
     @property
     def table_bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
         """World ``(x0, x1), (y0, y1)`` of the table top, metres."""
-        hx, hy = TABLE_FULL_SIZE[0] / 2, TABLE_FULL_SIZE[1] / 2
-        return (TABLE_CENTER_X - hx, TABLE_CENTER_X + hx), (-hy, hy)
+        return self.scene.table.bounds

@@ -5,7 +5,7 @@ pushes the task's own object), a direction ``theta`` uniform in ``[0, pi]`` -- t
 object by ``push_distance * (cos theta, sin theta)`` in the table plane (world x points away from
 the robot, y to its left) -- and a target that far away in that direction (0.3 m, SPEC §3, for
 training data and the task suite alike). Directions are redrawn
-until the target lies in :data:`TARGET_REGION` (on the table, within the arm's reach) and, with
+until the target lies in the scene's ``placement.target_region`` (on the table, within the arm's reach) and, with
 ``clear_path`` (the default), until neither the pushed object nor the fingers sweep through
 another object on the way (such a push cannot reach the goal, which keeps the other objects in
 place). A proportional controller on the end-effector position then
@@ -42,43 +42,33 @@ from typing import Any
 import numpy as np
 
 from vp2.data.policies.base import ScriptedPolicy
-from vp2.envs._tabletop_world import (
-    OBJECT_FOOTPRINT,
-    OBJECT_REST_HEIGHT,
-    OBJECT_SIZES,
-    OSC_OUTPUT_MAX,
-    TABLE_TOP_Z,
-)
 from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
+from vp2.envs.tabletop_scene import SceneObject
 from vp2.utils.fixedmath import dot, matvec, norm
 
 __all__ = [
     "DONE_TOLERANCE",
     "PUSH_DISTANCE",
     "TABLETOP_POLICIES",
-    "TARGET_REGION",
     "TabletopPushPolicy",
     "make_tabletop_policy",
 ]
 
 #: Distance the pushed object should travel (metres), SPEC §3.
 PUSH_DISTANCE = 0.3
-#: Where targets may lie (world x range, y range; metres): on the table (whose top spans
-#: x in [-0.37, 0.21], y in [-0.32, 0.32]) with every object's centre at least 6 cm from its
-#: edges, and not so far from the robot (x > 0.15) that the arm pushes poorly there.
-TARGET_REGION: tuple[tuple[float, float], tuple[float, float]] = ((-0.3, 0.15), (-0.26, 0.26))
 #: The push stops when the object is this close to its target (metres).
 DONE_TOLERANCE = 0.012
 
-# End-effector (grip site) heights: above every object (objects are at most 5 cm tall and the
-# fingertips reach about 1 cm below the grip site), and low enough to push every object near
-# its middle while keeping the fingertips off the table and the hand above the objects.
-_Z_SAFE = TABLE_TOP_Z + 0.085
-_Z_PUSH = TABLE_TOP_Z + 0.025
+# End-effector (grip site) heights above the table top: above every object (objects are at
+# most 5 cm tall and the fingertips reach about 1 cm below the grip site), and low enough to
+# push every object near its middle while keeping the fingertips off the table and the hand
+# above the objects.
+_SAFE_HEIGHT = 0.085
+_PUSH_HEIGHT = 0.025
 # Footprint of the closed fingers around the grip site at the height of the objects' middles
 # (world x range, y range; metres): measured with mj_geomDistance between robosuite's Panda
 # finger collision geoms and a sphere moved around them. The hand above the fingers starts
-# _HAND_BOTTOM above the grip site, higher than any object when pushing at _Z_PUSH; its
+# _HAND_BOTTOM above the grip site, higher than any object when pushing at _PUSH_HEIGHT; its
 # footprint matters only for objects taller than that.
 _FINGERS_BOX = ((-0.009, 0.009), (-0.019, 0.019))
 _HAND_BOX = ((-0.044, 0.019), (-0.100, 0.104))
@@ -87,7 +77,8 @@ _HAND_BOTTOM = 0.029
 _SWEEP_BOX = ((-0.016, 0.010), (-0.027, 0.027))
 # Free gap left between the gripper and the object while descending behind it (metres).
 _APPROACH_GAP = 0.02
-# Step the push phase asks for per control step (metres; OSC_OUTPUT_MAX is a full action), and
+# Step the push phase asks for per control step (metres; the controller's output_max is a full
+# action), and
 # the gain of its sideways correction.
 _PUSH_ADVANCE = 0.05
 _LATERAL_GAIN = 1.5
@@ -96,9 +87,9 @@ _MISALIGNED = 0.03
 # the object's own extent, and how sharply the leading point moves to a fingertip corner.
 _SLIP_WIDTH = 0.025
 _CORNER_SOFTNESS = 0.25
-# Proportional gain: full action for a position error of 2/3 OSC_OUTPUT_MAX (the arm covers
-# about 70% of a commanded step within the step).
-_GAIN = 1.5 / OSC_OUTPUT_MAX
+# Proportional gain times the controller's output_max: full action for a position error of
+# 2/3 of output_max (the arm covers about 70% of a commanded step within the step).
+_GAIN_TIMES_OUTPUT = 1.5
 # Free space required between the sweep of a push and the other objects (metres).
 _CLEARANCE = 0.02
 _MAX_DIRECTION_DRAWS = 100
@@ -141,15 +132,15 @@ def _box_support(
 
 
 def _footprint(
-    name: str, quat: np.ndarray, radius: float | None = None
+    obj: SceneObject, quat: np.ndarray, radius: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Facet normals ``(n, 2)`` and support values ``(n,)`` of an object's horizontal section.
 
     ``radius`` overrides the radius of a round object's section (the sphere is narrower at the
     hand's height than at its equator).
     """
-    size = OBJECT_SIZES[name]
-    if not name.endswith("cube"):
+    size = obj.size
+    if obj.shape != "box":
         r = size[0] if radius is None else radius
         return _DISK_NORMALS, np.full(len(_DISK_NORMALS), r)
     w, x, y, z = quat
@@ -195,21 +186,23 @@ def _ray_cast(
     return float(np.min(support[ahead] / cos[ahead]))
 
 
-def _contact_distance(name: str, quat: np.ndarray, u: np.ndarray) -> float:
-    """Grip-site distance behind an object's centre (along ``u``) at which the gripper touches it.
+def _contact_distance(
+    obj: SceneObject, quat: np.ndarray, u: np.ndarray, z_push: float, table_z: float
+) -> float:
+    """Grip-site distance behind an object's centre (along ``u``) at which the gripper touches it
+    when pushing with the grip site at height ``z_push`` over a table top at ``table_z``.
 
     The fingers meet the object's widest section; the hand, which starts ``_HAND_BOTTOM`` above
     the grip site, meets what of the object rises above that height. The first to touch wins.
     """
-    dist = _ray_cast(_FINGERS_BOX, _footprint(name, quat), u)
-    hand_z = _Z_PUSH + _HAND_BOTTOM - TABLE_TOP_Z  # hand bottom above the table
-    height = 2.0 * OBJECT_REST_HEIGHT[name]
-    if height > hand_z:
+    dist = _ray_cast(_FINGERS_BOX, _footprint(obj, quat), u)
+    hand_z = z_push + _HAND_BOTTOM - table_z  # hand bottom above the table
+    if obj.height > hand_z:
         radius = None
-        if name == "sphere":
-            r = OBJECT_SIZES["sphere"][0]
+        if obj.shape == "ball":
+            r = obj.size[0]
             radius = math.sqrt(max(r * r - (hand_z - r) * (hand_z - r), 0.0))
-        dist = max(dist, _ray_cast(_HAND_BOX, _footprint(name, quat, radius), u))
+        dist = max(dist, _ray_cast(_HAND_BOX, _footprint(obj, quat, radius), u))
     return dist
 
 
@@ -235,6 +228,12 @@ class TabletopPushPolicy(ScriptedPolicy):
         push_distance: float = PUSH_DISTANCE,
     ):
         super().__init__(env, rng)
+        scene = env.scene
+        self.scene = scene
+        self._table_z = scene.table.top_z
+        self._z_safe = scene.table.top_z + _SAFE_HEIGHT
+        self._z_push = scene.table.top_z + _PUSH_HEIGHT
+        self._gain = _GAIN_TIMES_OUTPUT / scene.controller.output_max
         if not push_distance > 0:
             raise ValueError(f"push_distance must be positive (metres), got {push_distance}")
         self.clear_path = clear_path
@@ -270,14 +269,14 @@ class TabletopPushPolicy(ScriptedPolicy):
     def _draw_direction(self) -> bool:
         """Draws ``theta`` until the push is feasible; False if no draw is.
 
-        Feasible: the target lies in :data:`TARGET_REGION` and, if ``clear_path``, neither the
+        Feasible: the target lies in the scene's ``placement.target_region`` and, if ``clear_path``, neither the
         pushed object nor the gripper sweeps through another object on the way (those pushes
         cannot reach the policy's goal, which keeps the other objects in place). If no draw is
         feasible, the last on-region draw is kept, or the target is clipped into the region.
         """
         k = self.object_index
         start = self.initial_positions[k, :2]
-        (x0, x1), (y0, y1) = TARGET_REGION
+        (x0, x1), (y0, y1) = self.scene.placement.target_region
         fallback = None
         for _ in range(_MAX_DIRECTION_DRAWS):
             theta = float(self.rng.uniform(0.0, np.pi))
@@ -296,19 +295,19 @@ class TabletopPushPolicy(ScriptedPolicy):
 
     def _path_is_clear(self, k: int, start: np.ndarray, target: np.ndarray, u: np.ndarray) -> bool:
         """Whether pushing object ``k`` from ``start`` to ``target`` leaves the others alone."""
-        name = OBJECT_NAMES[k]
-        contact = _contact_distance(name, self.initial_quaternions[k], u)
+        obj = self.scene.objects[k]
+        contact = _contact_distance(obj, self.initial_quaternions[k], u, self._z_push, self._table_z)
         side = np.array([-u[1], u[0]])
         gripper_start = start - (contact + _APPROACH_GAP) * u
         gripper_end = target - contact * u
-        for j, other in enumerate(OBJECT_NAMES):
+        for j, other in enumerate(self.scene.objects):
             if j == k:
                 continue
-            p, r = self.initial_positions[j, :2], OBJECT_FOOTPRINT[other]
-            if _segment_distance(p, start, target) < OBJECT_FOOTPRINT[name] + r + _CLEARANCE:
+            p, r = self.initial_positions[j, :2], other.footprint
+            if _segment_distance(p, start, target) < obj.footprint + r + _CLEARANCE:
                 return False
             # The gripper sweeps a box; bound it by a capsule around its travel.
-            tall = 2.0 * OBJECT_REST_HEIGHT[other] > _Z_PUSH + _HAND_BOTTOM - TABLE_TOP_Z
+            tall = other.height > self._z_push + _HAND_BOTTOM - self._table_z
             box = _HAND_BOX if tall else _SWEEP_BOX
             normals = np.stack([u, -u, side, -side])
             front, back, left, right = _box_support(box, normals)
@@ -346,8 +345,7 @@ class TabletopPushPolicy(ScriptedPolicy):
         dist = norm(to_target)
         u = to_target / dist if dist > 1e-6 else self._last_u
         self._last_u = u
-        name = OBJECT_NAMES[k]
-        normals, support = _footprint(name, env.object_quaternions()[k])
+        normals, support = _footprint(self.scene.objects[k], env.object_quaternions()[k])
         # The object's extent towards the gripper, and the point of the gripper that should
         # touch it: a contact whose normal is the push direction (a fingertip corner for
         # diagonal pushes, since a flat face pushes along its own normal).
@@ -371,18 +369,18 @@ class TabletopPushPolicy(ScriptedPolicy):
             self.phase = "approach"
         if self.phase == "approach" and norm(ee[:2] - behind) < 0.015:
             self.phase = "descend"
-        if self.phase == "descend" and ee[2] < _Z_PUSH + 0.01:
+        if self.phase == "descend" and ee[2] < self._z_push + 0.01:
             self.phase = "push"
 
         if self.phase == "approach":
             # Rise first if low next to the object, so as not to sweep through it on the way.
             near = norm(ee[:2] - obj[:2]) < reach + 0.08
-            low_and_near = ee[2] < _Z_SAFE - 0.03 and near
+            low_and_near = ee[2] < self._z_safe - 0.03 and near
             desired = (
-                np.array([ee[0], ee[1], _Z_SAFE]) if low_and_near else np.append(behind, _Z_SAFE)
+                np.array([ee[0], ee[1], self._z_safe]) if low_and_near else np.append(behind, self._z_safe)
             )
         elif self.phase == "descend":
-            desired = np.append(behind, _Z_PUSH)
+            desired = np.append(behind, self._z_push)
         elif self.phase == "push":
             # Forward along the object->target line, slowing down as the object nears its
             # target, plus a sideways correction that brings the contact point back onto the
@@ -391,14 +389,14 @@ class TabletopPushPolicy(ScriptedPolicy):
             side = np.array([-u[1], u[0]])  # unit vector to the left of the line
             forward = min(dist, _PUSH_ADVANCE) * max(0.2, 1.0 - abs(across_signed) / _MISALIGNED)
             desired_xy = ee[:2] + forward * u + _LATERAL_GAIN * across_signed * side
-            desired = np.append(desired_xy, _Z_PUSH)
+            desired = np.append(desired_xy, self._z_push)
         else:
             desired = ee.copy()
 
         _, base_rot = env.base_frame()
         delta = matvec(base_rot.T, desired - ee)  # actions are expressed in the robot base frame
         action = np.empty(4)
-        command = _GAIN * delta
+        command = self._gain * delta
         # Scale (not clip per axis) so that a saturated command keeps its direction.
         action[:3] = command / max(1.0, float(np.max(np.abs(command))))
         action[3] = 1.0  # keep the gripper closed
