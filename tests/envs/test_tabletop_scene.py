@@ -26,78 +26,92 @@ def scaled(scene: TabletopScene, factor: float) -> TabletopScene:
     return dataclasses.replace(scene, objects=objects)
 
 
-BIG = scaled(DEFAULT_SCENE, 1.5)
+#: Why the tests that replay the shipped suite's tabletop instances fail for now.
+SUITE_V3 = "tabletop suite v3 predates the paper's scene; regenerated with suite v4"
+
+BIG = scaled(DEFAULT_SCENE, 1.25)
 
 
 def test_the_default_scene_is_the_benchmarks_scene():
-    """The numbers the tabletop was built from before they were one value, written out."""
+    """SPEC §1.2's scene (the original release's), number for number."""
     s = DEFAULT_SCENE
     assert OBJECT_NAMES == ("large_cube", "small_cube", "cylinder", "sphere")
     assert [(o.name, o.shape, o.size) for o in s.objects] == [
-        ("large_cube", "box", (0.025, 0.025, 0.025)),
-        ("small_cube", "box", (0.0175, 0.0175, 0.0175)),
-        ("cylinder", "cylinder", (0.025, 0.025)),
-        ("sphere", "ball", (0.025,)),
+        ("large_cube", "box", (0.06, 0.06, 0.06)),
+        ("small_cube", "box", (0.04, 0.04, 0.04)),
+        ("cylinder", "cylinder", (0.06, 0.06)),
+        ("sphere", "ball", (0.07,)),
     ]
     assert s.rest_heights == {
-        "large_cube": 0.025, "small_cube": 0.0175, "cylinder": 0.025, "sphere": 0.025,
+        "large_cube": 0.06, "small_cube": 0.04, "cylinder": 0.06, "sphere": 0.07,
     }  # fmt: skip
-    assert s.footprints == {
-        "large_cube": 0.025 * float(np.sqrt(2.0)),
-        "small_cube": 0.0175 * float(np.sqrt(2.0)),
-        "cylinder": 0.025,
-        "sphere": 0.025,
-    }
-    assert [o.friction for o in s.objects] == [(0.5, 0.005, 0.0001)] * 3 + [(0.5, 0.005, 0.004)]
-    assert [o.condim for o in s.objects] == [None, None, None, 6]
+    assert s.footprints == pytest.approx({
+        "large_cube": 0.06 * float(np.sqrt(2.0)),
+        "small_cube": 0.04 * float(np.sqrt(2.0)),
+        "cylinder": 0.06,
+        "sphere": 0.07,
+    }, rel=1e-15)
+    assert [o.friction for o in s.objects] == [(0.7, 0.005, 0.0001)] * 3 + [(0.5, 0.005, 0.0001)]
+    assert [o.condim for o in s.objects] == [None] * 4  # MuJoCo's 3: no rolling resistance
+    assert [o.priority for o in s.objects] == [1] * 4
     assert {o.density for o in s.objects} == {1000}
     assert {o.rgba for o in s.objects} == {(0.5, 0.5, 0.5, 1.0)}
-    assert s.table.full_size == (0.58, 0.64, 0.05) and s.table.center_x == -0.08
-    assert s.table.top_z == 0.8 and s.table.friction == (0.5, 0.005, 0.0001)
-    assert s.table.bounds == ((-0.37, -0.08 + 0.29), (-0.32, 0.32))
+    assert s.table.full_size == (0.8, 0.8, 0.05) and s.table.center_x == 0.0
+    assert s.table.top_z == 0.8 and s.table.friction == (1.0, 0.005, 0.0001)
+    assert s.table.bounds == ((-0.4, 0.4), (-0.4, 0.4))
     assert s.robot.base_pos == (-0.56, 0.0, 0.0)
     np.testing.assert_array_equal(
         s.robot.init_qpos,
-        np.array([0.0, np.pi / 16.0, 0.0, -np.pi / 2.0 - np.pi / 3.0, 0.0, np.pi - 0.2, np.pi / 4])
-        + np.array([0.0, -0.1, 0.0, -0.35, 0.0, 0.25, 0.0]),
+        np.array([0.0, np.pi / 16.0, 0.0, -np.pi / 2.0 - np.pi / 3.0, 0.0, np.pi - 0.2, np.pi / 4]),
     )
     assert s.robot.init_noise == 0.02 and s.robot.gripper_qpos == (0.020833, -0.020833)
-    assert s.placement.region == ((-0.22, 0.1), (-0.26, 0.09)) and s.placement.gap == 0.03
-    assert s.placement.yaw_range == (0.0, 2.0 * np.pi) and s.placement.max_draws == 1000
-    assert s.placement.target_region == ((-0.3, 0.15), (-0.26, 0.26))
-    assert s.placement.initial_layout == ((-0.1, -0.15), (-0.1, 0.15), (0.05, -0.1), (0.05, 0.1))
+    p = s.placement
+    assert p.region == ((-0.1, 0.3), (-0.15, 0.15)) and p.drop_height == 0.01
+    assert p.yaw_range == (0.0, 2.0 * np.pi) and p.max_draws == 5000
+    assert p.target_region == ((-0.35, 0.35), (-0.35, 0.35))
+    assert p.initial_layout == ((0.0, -0.1), (0.0, 0.1), (0.2, -0.1), (0.2, 0.1))
     c = s.controller
     assert (c.control_freq, c.output_max, c.input_max, c.kp, c.damping_ratio, c.nullspace_kp) == (
-        5, 0.05, 1, 150, 1, 10.0
+        1, 0.05, 1, 150, 1, 10.0
     )
-    assert s.camera.name == "vp2_tabletop" and s.camera.fovy == 10.0
-    assert s.camera.pos == (2.696, 0.0, 3.741) and s.camera.lookat == (-0.245, 0.0, 0.8)
-    assert len(s.textures.names) == 13 and s.textures.names[:3] == ("WoodRed", "WoodGreen", "WoodBlue")
-    assert (s.textures.specular, s.textures.shininess) == (0.4, 0.1)
+    assert c.hand_orientation == ((0, 1, 0), (1, 0, 0), (0, 0, -1))
+    assert s.camera.name == "agentview_shift_2" and s.camera.fovy == 45.0
+    assert s.camera.pos == (0.6758858572576728, -4.76e-08, 1.251269639768581)
+    assert s.camera.quat == (
+        0.6325998902320862, 0.31593844294548035, 0.31593817472457886, 0.6326003670692444
+    )  # fmt: skip
+    assert s.textures.names == (
+        "Can", "BricksWhite", "WoodRed", "WoodGreen", "WoodBlue", "PlasterYellow", "Brass",
+        "PlasterPink", "Dirt", "Bread", "FeltGray", "Clay", "Lemon",
+    )  # fmt: skip
+    assert (s.textures.specular, s.textures.shininess) == (0.5, 0.5)
+    a = s.arena
+    assert (a.floor_texture, a.wall_texture) == ("WoodTiles", "PlasterCream")
+    assert a.lights == (((1, 1, 4), (0, -0.15, -1)), ((-3, -3, 4), (0, -0.15, -1)))
+    assert (a.light_diffuse, a.light_specular) == (0.8, 0.3)
     r = s.render
     assert (r.camera, r.shadow_size, r.shadow_lights, r.skybox, r.mesh_reduction) == (
-        "vp2_tabletop", 256, (), False, 0.7
+        "agentview_shift_2", 256, (), False, 0.7
     )
     assert (r.multisamples, r.reflection, r.plane_spacing) == (0, False, 0.5)
     assert (r.numslices, r.numstacks, r.numquads) == (16, 8, 1)
     assert s.solver_arena == "16M"
-    # The fingerprint the shipped oracle tables were measured under.
-    assert render_fingerprint("tabletop") == render_fingerprint("tabletop", s) == "ffefac1effe98323"
+    assert render_fingerprint("tabletop") == render_fingerprint("tabletop", s) == "cc2ca32c477856c4"
 
 
 def test_a_variant_moves_rest_heights_and_footprints_together():
     for default, big in zip(DEFAULT_SCENE.objects, BIG.objects, strict=True):
-        assert big.rest_height == pytest.approx(1.5 * default.rest_height, rel=1e-15)
-        assert big.footprint == pytest.approx(1.5 * default.footprint, rel=1e-15)
+        assert big.rest_height == pytest.approx(1.25 * default.rest_height, rel=1e-15)
+        assert big.footprint == pytest.approx(1.25 * default.footprint, rel=1e-15)
         assert big.height == 2 * big.rest_height
-    assert BIG.rest_heights["small_cube"] == pytest.approx(0.02625)
-    assert BIG.footprints["large_cube"] == pytest.approx(0.0375 * math.sqrt(2.0))
+    assert BIG.rest_heights["small_cube"] == pytest.approx(0.05)
+    assert BIG.footprints["large_cube"] == pytest.approx(0.075 * math.sqrt(2.0))
     # A box's footprint is its base's circumradius, whatever its proportions.
     flat = dataclasses.replace(DEFAULT_SCENE.objects[0], size=(0.03, 0.04, 0.01))
     assert flat.footprint == pytest.approx(0.05) and flat.rest_height == 0.01
     # Only the objects changed; the default is untouched.
     assert BIG.table == DEFAULT_SCENE.table and BIG.camera == DEFAULT_SCENE.camera
-    assert DEFAULT_SCENE.objects[0].size == (0.025, 0.025, 0.025)
+    assert DEFAULT_SCENE.objects[0].size == (0.06, 0.06, 0.06)
     # The render fingerprint follows the camera and the render spec, not the objects.
     assert render_fingerprint("tabletop", BIG) == render_fingerprint("tabletop", DEFAULT_SCENE)
     far = dataclasses.replace(
@@ -113,7 +127,7 @@ def test_bad_scenes_say_what_is_wrong():
         dataclasses.replace(DEFAULT_SCENE.objects[3], shape="cone")
     with pytest.raises(ValueError, match="objects large_cube, small_cube, cylinder, sphere"):
         dataclasses.replace(DEFAULT_SCENE, objects=DEFAULT_SCENE.objects[::-1])
-    with pytest.raises(ValueError, match="render spec draws camera 'vp2_tabletop'"):
+    with pytest.raises(ValueError, match="render spec draws camera 'agentview_shift_2'"):
         dataclasses.replace(
             DEFAULT_SCENE, camera=dataclasses.replace(DEFAULT_SCENE.camera, name="other")
         )
@@ -140,9 +154,9 @@ def _states(env: TabletopEnv, seed: int, steps: int = 4) -> np.ndarray:
     return np.stack(out)
 
 
-def test_a_default_env_steps_as_before_the_scene_value():
-    """States of the first steps, digested: recorded with the code before the scene was a value
-    (a state is the same bits on every CPU, tests/envs/test_cross_cpu.py)."""
+def test_a_default_env_steps_as_recorded():
+    """States of the first steps, digested: recorded when the scene became the original's (a
+    state is the same bits on every CPU, tests/envs/test_cross_cpu.py)."""
     with TabletopEnv("push_sphere", seed=0, observation_size=None) as env:
         h = hashlib.sha256(env.get_state().tobytes())
         env.reset(seed=3)
@@ -150,10 +164,11 @@ def test_a_default_env_steps_as_before_the_scene_value():
         for action in np.random.default_rng(0).uniform(-1, 1, (5, 4)):
             env.step(action)
             h.update(env.get_state().tobytes())
-        assert h.hexdigest()[:32] == "e2bdbc3b6ea6fda05a51343636830af9"
+        assert h.hexdigest()[:32] == "619e27bc66a91ffc2af03dc6dcab59f0"
         assert "scene" not in env.serialize()["kwargs"]
 
 
+@pytest.mark.xfail(reason=SUITE_V3, strict=True)
 def test_a_default_env_replays_and_renders_a_shipped_instance_bit_for_bit():
     inst = TaskSuite.load().for_task("tabletop/push_cylinder")[0]
     with TabletopEnv("push_cylinder", observation_size=None) as env:
@@ -173,19 +188,19 @@ def test_envs_of_different_scenes_in_one_process_stay_apart():
         assert first._world.compiled_xml == second._world.compiled_xml != big._world.compiled_xml
         geoms = first._world.object_visual_geoms
         np.testing.assert_allclose(
-            big._model.geom_size[geoms], 1.5 * first._model.geom_size[geoms], rtol=1e-6
+            big._model.geom_size[geoms], 1.25 * first._model.geom_size[geoms], rtol=1e-6
         )
         np.testing.assert_array_equal(_states(first, 5), _states(second, 5))
-        # The big objects rest on the table at their own height, placed by their footprints.
+        # The big objects start 1 cm above their own rest height, placed by their footprints.
         big.reset(seed=5)
         pos = big.object_positions()
         np.testing.assert_array_equal(
-            pos[:, 2], [BIG.table.top_z + BIG.rest_heights[n] for n in OBJECT_NAMES]
+            pos[:, 2], [BIG.table.top_z + 0.01 + BIG.rest_heights[n] for n in OBJECT_NAMES]
         )
         radii = np.array([BIG.footprints[n] for n in OBJECT_NAMES])
         gaps = np.linalg.norm(pos[:, None, :2] - pos[None, :, :2], axis=-1)
-        need = radii[:, None] + radii[None] + BIG.placement.gap
-        assert np.all(gaps[~np.eye(4, dtype=bool)] >= need[~np.eye(4, dtype=bool)])
+        need = radii[:, None] + radii[None]
+        assert np.all(gaps[~np.eye(4, dtype=bool)] > need[~np.eye(4, dtype=bool)])
         # Building the variant changed nothing of the default.
         assert render_fingerprint("tabletop") == render_fingerprint("tabletop", DEFAULT_SCENE)
         np.testing.assert_array_equal(_states(first, 6), _states(second, 6))

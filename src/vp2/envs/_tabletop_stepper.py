@@ -10,8 +10,7 @@ kernels that numpy and scipy choose by CPU at run time; the last bits of its tra
 through the contacts the trajectories themselves, depend on the machine. Here the goal is
 computed element-wise and the torques by :func:`vp2.envs._osc_kernel.osc_torques` (fixed-order
 loops compiled by numba): the same bits on every CPU. Against robosuite's own step the states
-agree to rounding (5e-16 after one step, ~1e-12 after 30 random steps: as close as robosuite
-agrees with itself on another OpenBLAS kernel; ``tests/envs/test_tabletop.py``).
+agree to rounding (``tests/envs/test_tabletop.py``; figures in docs/tabletop.md).
 """
 
 from __future__ import annotations
@@ -26,8 +25,8 @@ from vp2.envs._tabletop_world import TabletopWorld
 class LeanStepper:
     """One control step of a :class:`TabletopWorld`: robosuite's ``env.step``, CPU-independent.
 
-    robosuite's step spends most of its time outside the physics: per physics step (25 per
-    control step) it re-queries Jacobians by site name four times, recomputes action limits,
+    robosuite's step spends most of its time outside the physics: per physics step (500 per
+    control step at 1 Hz) it re-queries Jacobians by site name four times, recomputes action limits,
     updates every observable, and pushes proprioception buffers. This class keeps only what
     changes the simulation: at the first physics step the goals (the gripper's by robosuite's
     own ``set_goal``, the arm's by :meth:`_set_goal`), then at every physics step the
@@ -86,6 +85,7 @@ class LeanStepper:
         self._jacp_c = np.zeros((3, nv))
         self._jacr_c = np.zeros((3, nv))
         self._torques = np.zeros(len(self._qvel_index))
+        self._hand = np.array(world.scene.controller.hand_orientation, np.float64)
         self._nullspace_kp = float(world.scene.controller.nullspace_kp)
         start, end = self.composite._action_split_indexes[self.osc.part_name]
         self._arm_action = slice(start, end)
@@ -145,10 +145,11 @@ class LeanStepper:
         in the base frame.
 
         The gripper part is robosuite's own code (element-wise). The arm goal is
-        ``OperationalSpaceController.compute_goal_pos/compute_goal_ori`` written out in
-        fixed-order arithmetic: robosuite composes 4x4 poses with ``np.dot`` (OpenBLAS, CPU-
-        dependent rounding). Goal position: ``R' (p_ee - p_base) + scaled delta``; goal
-        orientation: ``R' R_ee`` (the rotation of a zero orientation delta is the identity).
+        ``OperationalSpaceController.compute_goal_pos`` and the world's fixed orientation goal
+        (``TabletopWorld``: the scene's ``hand_orientation`` H) written out in fixed-order
+        arithmetic: robosuite composes 4x4 poses with ``np.dot`` (OpenBLAS, CPU-dependent
+        rounding). Goal position: ``R' (p_ee - p_base) + scaled delta``; goal orientation:
+        ``R' H``.
         """
         d = self.data
         self.grip.new_update = True
@@ -156,15 +157,15 @@ class LeanStepper:
         origin_pos = d.site_xpos[self._center_site]
         origin_ori = d.site_xmat[self._center_site].reshape(3, 3)
         ref_pos = d.site_xpos[self._ref_site]
-        ref_ori = d.site_xmat[self._ref_site].reshape(3, 3)
+        hand = self._hand
         rel = ref_pos - origin_pos
         goal_pos = (
             origin_ori[0] * rel[0] + origin_ori[1] * rel[1] + origin_ori[2] * rel[2]
         ) + self.osc.scale_action(action[self._arm_action])
         goal_ori = (
-            origin_ori[0][:, None] * ref_ori[0][None, :]
-            + origin_ori[1][:, None] * ref_ori[1][None, :]
-            + origin_ori[2][:, None] * ref_ori[2][None, :]
+            origin_ori[0][:, None] * hand[0][None, :]
+            + origin_ori[1][:, None] * hand[1][None, :]
+            + origin_ori[2][:, None] * hand[2][None, :]
         )
         self.osc.goal_pos, self.osc.goal_ori = goal_pos, goal_ori
         return goal_pos, goal_ori

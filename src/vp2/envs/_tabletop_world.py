@@ -33,8 +33,12 @@ from robosuite.models.objects import BallObject, BoxObject, CylinderObject  # no
 from robosuite.models.tasks import ManipulationTask  # noqa: E402
 from robosuite.utils.mjcf_utils import TEXTURES, xml_path_completion  # noqa: E402
 
-from vp2.envs.tabletop_scene import SceneController, TabletopScene, resolve_scene  # noqa: E402
-from vp2.utils.fixedmath import norm  # noqa: E402
+from vp2.envs.tabletop_scene import (  # noqa: E402
+    SceneArena,
+    SceneController,
+    TabletopScene,
+    resolve_scene,
+)
 
 # robosuite logs an INFO line (the controller config path) on every construction.
 logging.getLogger("robosuite_logs").setLevel(logging.WARNING)
@@ -49,24 +53,12 @@ _NO_TIME_LIMIT = 10**9
 _HIDDEN_GEOM_GROUP = 5
 
 
-def _look_at_quat(pos: tuple[float, ...], target: tuple[float, ...]) -> np.ndarray:
-    """Quaternion (w, x, y, z) of a MuJoCo camera at ``pos`` looking at ``target``, z up."""
-    back = np.asarray(pos, np.float64) - np.asarray(target, np.float64)
-    back /= norm(back)  # a MuJoCo camera looks along its -z axis
-    right = np.cross(np.array([0.0, 0.0, 1.0]), back)
-    right /= norm(right)
-    up = np.cross(back, right)
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.stack([right, up, back], axis=1).reshape(-1))
-    return quat
-
-
 def osc_position_controller_config(controller: SceneController) -> dict:
     """robosuite's Panda composite controller with the arm on the stock ``OSC_POSITION`` part.
 
-    Δxyz of up to ``controller.output_max`` per control step, orientation held, with the
-    scene's gains and input range, plus robosuite's default ``GRIP`` gripper controller: a 4-D
-    action in ``[-1, 1]``.
+    Δxyz of up to ``controller.output_max`` per control step, with the scene's gains and input
+    range, plus robosuite's default ``GRIP`` gripper controller: a 4-D action in ``[-1, 1]``.
+    The orientation goal is set by :class:`TabletopWorld` (``controller.hand_orientation``).
     """
     config = load_composite_controller_config(robot="Panda")
     parts_dir = pathlib.Path(robosuite.__file__).parent / "controllers/config/default/parts"
@@ -89,7 +81,9 @@ class TabletopWorld(ManipulationEnv):
     Everything in it is built from a :class:`~vp2.envs.tabletop_scene.TabletopScene`. The object
     textures are materials of the model (one per name of the scene's ``textures``), so
     re-texturing an object is a change of its visual geom's ``geom_matid``, never a model
-    rebuild. Initial states are set by the caller (:class:`vp2.envs.tabletop.TabletopEnv`);
+    rebuild. robosuite's ``OSC_POSITION`` holds the hand at the scene's
+    ``controller.hand_orientation`` (robosuite 1.3's behaviour; 1.5.2 would hold the current
+    orientation), so ``world.step`` is the original's controller. Initial states are set by the caller (:class:`vp2.envs.tabletop.TabletopEnv`);
     robosuite's own ``reset`` only runs once, at construction.
 
     Args:
@@ -134,11 +128,12 @@ class TabletopWorld(ManipulationEnv):
             table_offset=(table.center_x, 0.0, table.top_z),
         )
         arena.set_origin([0, 0, 0])
+        _dress_arena(arena, scene.arena)
         camera = scene.camera
         arena.set_camera(
             camera.name,
             pos=list(camera.pos),
-            quat=list(_look_at_quat(camera.pos, camera.lookat)),
+            quat=list(camera.quat),
             camera_attribs={"fovy": str(camera.fovy)},
         )
         # One cube-mapped texture + material per texture name, shared by all four objects.
@@ -170,15 +165,28 @@ class TabletopWorld(ManipulationEnv):
             for obj in scene.objects
         ]
         for obj, model in zip(scene.objects, self.objects, strict=True):
-            if obj.condim is not None:
-                for geom in model.get_obj().iter("geom"):
-                    if geom.get("group") == "0":  # the collision geoms
+            for geom in model.get_obj().iter("geom"):
+                if geom.get("group") == "0":  # the collision geoms
+                    geom.set("priority", str(obj.priority))
+                    if obj.condim is not None:
                         geom.set("condim", str(obj.condim))
         self.model = ManipulationTask(
             mujoco_arena=arena,
             mujoco_robots=[robot.robot_model for robot in self.robots],
             mujoco_objects=self.objects,
         )
+
+    def _reset_internal(self) -> None:
+        super()._reset_internal()
+        # robosuite 1.3's OSC_POSITION: the orientation goal is the scene's fixed world
+        # orientation at every control step (in the controller's base frame).
+        osc = self.robots[0].composite_controller.part_controllers["right"]
+        hand = np.array(self.scene.controller.hand_orientation, np.float64)
+
+        def fixed_goal_ori(delta: np.ndarray, goal_update_mode: str | None = None) -> np.ndarray:
+            return np.dot(np.asarray(osc.origin_ori).T, hand)
+
+        osc.compute_goal_ori = fixed_goal_ori
 
     def _setup_references(self) -> None:
         super()._setup_references()
@@ -196,8 +204,8 @@ class TabletopWorld(ManipulationEnv):
         groups[(groups == 0) | (groups == 2)] = _HIDDEN_GEOM_GROUP
         # robosuite's sites are debugging markers (grip point, axis lines): never drawn here.
         model.site_group[:] = _HIDDEN_GEOM_GROUP
-        # A matte scene: the floor's 1% reflectance (robosuite's) is visible from the oblique
-        # camera and would cost a second scene pass per frame for a faint mirror image.
+        # A matte scene: a reflective material (robosuite's floor has 1%, its table legs 80%)
+        # costs a second scene pass per frame for a faint mirror image.
         model.mat_reflectance[:] = 0.0
 
     def edit_model_xml(self, xml_str: str) -> str:
@@ -267,6 +275,31 @@ def _set_arena_size(xml: str, memory: str) -> str:
         size = ET.SubElement(root, "size")
     size.set("memory", memory)
     return ET.tostring(root, encoding="unicode")
+
+
+def _dress_arena(arena: TableArena, look: SceneArena) -> None:
+    """Gives robosuite's table arena the scene's floor and wall textures and lights (in place)."""
+    files = {"texplane": look.floor_texture, "tex-light-gray-plaster": look.wall_texture}
+    for texture in arena.asset.iter("texture"):
+        name = texture.get("name")
+        if name in files:
+            texture.set("file", xml_path_completion(TEXTURES[files[name]]))
+    for light in list(arena.worldbody.iter("light")):
+        arena.worldbody.remove(light)
+    grey = f"{look.light_diffuse} " * 3
+    specular = f"{look.light_specular} " * 3
+    for pos, direction in look.lights:
+        arena.worldbody.append(
+            _element(
+                "light",
+                pos=" ".join(str(v) for v in pos),
+                dir=" ".join(str(v) for v in direction),
+                diffuse=grey.strip(),
+                specular=specular.strip(),
+                directional="false",
+                castshadow="false",
+            )
+        )
 
 
 def _element(tag: str, **attrib: str) -> ET.Element:

@@ -1,20 +1,21 @@
 """Tabletop pushing (4 task categories): a robosuite Panda arm pushing one of four objects.
 
-SPEC §1.2. The scene is a robosuite table arena with a Panda arm driven by robosuite's
-operational-space *position* controller (orientation held) and gripper controller, and four
-objects: a large cube, a small cube, a cylinder and a sphere. Every number of the scene (object
-sizes and frictions, the table, the arm's pose, placement ranges, controller gains and rate, the
-camera, the render spec) is one value, a :class:`~vp2.envs.tabletop_scene.TabletopScene`
-(default :data:`~vp2.envs.tabletop_scene.DEFAULT_SCENE`, the numbers below). Every reset draws
-a texture for each object from the scene's set of 13, non-overlapping object positions in front
-of the arm, and a little arm joint noise, all from the environment's own generator.
+SPEC §1.2: the original release's scene. A robosuite table arena with a Panda arm driven by
+robosuite's operational-space *position* controller (hand held straight down) and gripper
+controller, and four objects: a large cube, a small cube, a cylinder and a sphere. Every number
+of the scene (object sizes and frictions, the table, the arm's pose, placement ranges,
+controller gains and rate, the camera, the render spec) is one value, a
+:class:`~vp2.envs.tabletop_scene.TabletopScene` (:data:`~vp2.envs.tabletop_scene.DEFAULT_SCENE`
+is the benchmark's). Every reset draws a texture for each object from the scene's set of 13,
+non-overlapping object positions in front of the arm (dropped from 1 cm), and a little arm
+joint noise, all from the environment's own generator.
 
 Action (4-D, in ``[-1, 1]``; outside values are clipped, see :meth:`Env.check_action`):
 ``(dx, dy, dz, gripper)``. ``dx, dy, dz`` move the end-effector goal by up to 5 cm per control
 step in the robot base frame (robosuite's ``OSC_POSITION`` default scaling); ``gripper`` > 0
 closes and < 0 opens the gripper by one increment of robosuite's ``PandaGripper`` per step.
-A control step is 0.2 s of simulated time (5 Hz control, 100 physics steps of 2 ms; robosuite's
-default of 20 Hz is too slow for the 35-step pushes of SPEC §3, see ``docs/tabletop.md``).
+A control step is 1 s of simulated time (1 Hz control, 500 physics steps of 2 ms): the hand
+reaches its goal and comes to rest within the step.
 
 Success (SPEC §1.2): every object is within 5 cm of its position in the goal state::
 
@@ -154,7 +155,8 @@ class TabletopEnv(Env):
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         rng, scene = self._rng, self.scene
-        textures = rng.choice(len(scene.textures.names), size=len(OBJECT_NAMES), replace=False)
+        # One texture per object, with replacement (the original's draws).
+        textures = rng.integers(0, len(scene.textures.names), size=len(OBJECT_NAMES))
         arm_qpos = scene.robot.init_qpos + scene.robot.init_noise * rng.standard_normal(7)
         object_xy = self._sample_placement(rng)
         yaw0, yaw1 = scene.placement.yaw_range
@@ -164,21 +166,21 @@ class TabletopEnv(Env):
         return obs, {"textures": self.texture_names(), "success": self.is_success()}
 
     def _sample_placement(self, rng: np.random.Generator) -> np.ndarray:
-        """Non-overlapping object positions in the scene's placement region, shape ``(4, 2)``."""
+        """Non-overlapping object positions in the scene's placement region, shape ``(4, 2)``:
+        robosuite's ``UniformRandomSampler``, one object after the other, each redrawn while its
+        centre is within the sum of footprint radii of an object placed before it."""
         placement = self.scene.placement
         (x0, x1), (y0, y1) = placement.region
         radii = np.array([obj.footprint for obj in self.scene.objects])
-        for _ in range(placement.max_draws):
-            xy = np.stack(
-                [rng.uniform(x0, x1, len(OBJECT_NAMES)), rng.uniform(y0, y1, len(OBJECT_NAMES))],
-                axis=1,
-            )
-            dist = rows_norm(xy[:, None] - xy[None])
-            need = radii[:, None] + radii[None] + placement.gap
-            np.fill_diagonal(need, 0.0)
-            if np.all(dist >= need):
-                return xy
-        raise RuntimeError("could not place the objects without overlap")  # pragma: no cover
+        xy = np.zeros((len(OBJECT_NAMES), 2))
+        for k in range(len(OBJECT_NAMES)):
+            for _ in range(placement.max_draws):
+                xy[k] = (rng.uniform(x0, x1), rng.uniform(y0, y1))
+                if k == 0 or np.all(rows_norm(xy[:k] - xy[k]) > radii[:k] + radii[k]):
+                    break
+            else:  # pragma: no cover
+                raise RuntimeError(f"could not place {OBJECT_NAMES[k]} without overlap")
+        return xy
 
     def _set_initial_state(
         self,
@@ -191,10 +193,10 @@ class TabletopEnv(Env):
         mujoco.mj_resetData(m, d)
         d.qpos[list(_ARM_QPOS_ADR)] = arm_qpos
         d.qpos[list(_GRIPPER_QPOS_ADR)] = np.array(self.scene.robot.gripper_qpos)
-        top_z = self.scene.table.top_z
+        start_z = self.scene.table.top_z + self.scene.placement.drop_height
         for k, obj in enumerate(self.scene.objects):
             adr = _OBJECT_QPOS_ADR[k]
-            d.qpos[adr : adr + 3] = (object_xy[k, 0], object_xy[k, 1], top_z + obj.rest_height)
+            d.qpos[adr : adr + 3] = (object_xy[k, 0], object_xy[k, 1], start_z + obj.rest_height)
             half_yaw = float(object_yaw[k]) / 2
             d.qpos[adr + 3 : adr + 7] = (math.cos(half_yaw), 0.0, 0.0, math.sin(half_yaw))
         mujoco.mj_forward(m, d)
@@ -249,7 +251,7 @@ class TabletopEnv(Env):
     def step(
         self, action: np.ndarray
     ) -> tuple[np.ndarray | None, float, bool, bool, dict[str, Any]]:
-        """One control step (0.2 s). ``info["success"]`` is judged against :meth:`set_goal`."""
+        """One control step (1 s at the default 1 Hz). ``info["success"]`` is judged against :meth:`set_goal`."""
         self._stepper.step(self.check_action(action))
         success = self.is_success()
         return self._observation(), float(success), False, False, {"success": success}

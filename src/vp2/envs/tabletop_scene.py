@@ -39,6 +39,7 @@ from vp2.envs.rendering import SOFTWARE_RENDERING, RenderSpec
 __all__ = [
     "DEFAULT_SCENE",
     "OBJECT_NAMES",
+    "SceneArena",
     "SceneCamera",
     "SceneController",
     "SceneObject",
@@ -71,9 +72,14 @@ class SceneObject:
             ``CylinderObject``, ``BallObject``).
         size: robosuite's size parameters (see :data:`SHAPE_SIZES`), metres.
         density: kg/m^3 (robosuite's default, water).
-        friction: sliding, torsional and rolling friction. MuJoCo uses the larger value of the
-            two geoms in contact.
-        condim: contact dimension of the collision geoms; ``None`` keeps MuJoCo's default (3).
+        friction: sliding, torsional and rolling friction of the collision geom.
+        priority: MuJoCo contact priority of the collision geom. The original's robosuite fork
+            gives every object's collision geom ``priority=1``, so an object's own friction
+            (and solref/solimp) governs its contacts with the table, the fingers and the arm
+            (priority 0); two objects in contact (equal priority) use the larger friction.
+        condim: contact dimension of the collision geoms; ``None`` keeps MuJoCo's default
+            (3: sliding friction only, so the torsional and rolling values have no effect and
+            a pushed ball has no rolling resistance, as in the original).
         rgba: the geoms' colour (the renderer uses the texture's material instead).
     """
 
@@ -81,7 +87,8 @@ class SceneObject:
     shape: str
     size: tuple[float, ...]
     density: float = 1000
-    friction: tuple[float, float, float] = (0.5, 0.005, 0.0001)
+    friction: tuple[float, float, float] = (0.7, 0.005, 0.0001)
+    priority: int = 1
     condim: int | None = None
     rgba: tuple[float, float, float, float] = (0.5, 0.5, 0.5, 1.0)
 
@@ -122,22 +129,21 @@ class SceneObject:
 
 @dataclasses.dataclass(frozen=True)
 class SceneTable:
-    """The table: only the part of robosuite's 0.8 x 0.8 m table that the arm works on, so that
-    the camera shows the whole table with objects large enough to see at 64x64.
+    """The table: the original's (``table_full_size``, ``table_friction``, ``table_offset`` of
+    its ``PushCenterMulti``), robosuite's table arena centred at the world origin.
 
     Attributes:
         full_size: x, y, thickness (metres).
         center_x: world x of the table top's centre (its y is 0).
         top_z: world height of the table top.
-        friction: sliding, torsional and rolling friction of the top; below robosuite's default
-            of 1 so that objects slide rather than tip when pushed (a cube tips when pushed
-            above half side / friction).
+        friction: sliding, torsional and rolling friction of the top. The objects' contact
+            priority makes their own friction govern every object-table contact.
     """
 
-    full_size: tuple[float, float, float] = (0.58, 0.64, 0.05)
-    center_x: float = -0.08
+    full_size: tuple[float, float, float] = (0.8, 0.8, 0.05)
+    center_x: float = 0.0
     top_z: float = 0.8
-    friction: tuple[float, float, float] = (0.5, 0.005, 0.0001)
+    friction: tuple[float, float, float] = (1.0, 0.005, 0.0001)
 
     @property
     def bounds(self) -> Range:
@@ -157,127 +163,161 @@ class SceneRobot:
     """The Panda arm's base and initial pose.
 
     Attributes:
-        base_pos: world position of the base: where robosuite puts it in front of its default
-            0.8 m table (the near edge of the smaller table is 0.19 m in front of it).
-        home_qpos: the pose the initial pose is an offset of (robosuite's default).
-        init_offset: change of the initial pose from ``home_qpos``. In robosuite's pose the hand
-            hangs over the middle of the placement region, where the camera sees nothing of the
-            objects under it; bending the shoulder and elbow back (the wrist turned by as much,
-            so the hand keeps its orientation) retracts the grip site from x = -0.10 to
-            x = -0.22 at the same height: over the back edge of the placement region.
+        base_pos: world position of the base: where robosuite puts it for a 0.8 m table
+            (``base_xpos_offset["table"](0.8)`` = (-0.16 - 0.8 / 2, 0, 0); the mount lifts
+            the arm's base site to z = 0.912).
+        home_qpos: the initial arm pose before noise (robosuite's Panda ``init_qpos``, the same
+            in robosuite 1.3 and 1.5.2); the grip site is then at (-0.103, 0, 1.011).
         init_noise: standard deviation of the Gaussian noise added to the initial joint angles
-            at reset (radians; robosuite's default for the Panda).
-        gripper_qpos: the open fingers' joint positions.
+            at reset (radians; robosuite's ``"default"`` initialization noise for the Panda).
+        gripper_qpos: the fingers' joint positions (robosuite's Panda gripper ``init_qpos``).
     """
 
     base_pos: tuple[float, float, float] = (-0.56, 0.0, 0.0)
     home_qpos: tuple[float, ...] = ROBOSUITE_PANDA_POSE
-    init_offset: tuple[float, ...] = (0.0, -0.1, 0.0, -0.35, 0.0, 0.25, 0.0)
     init_noise: float = 0.02
     gripper_qpos: tuple[float, float] = (0.020833, -0.020833)
 
     @property
     def init_qpos(self) -> np.ndarray:
-        """The initial arm pose before noise, ``home_qpos + init_offset`` (radians, ``(7,)``)."""
-        return np.array(self.home_qpos) + np.array(self.init_offset)
+        """The initial arm pose before noise, ``home_qpos`` (radians, ``(7,)``)."""
+        return np.array(self.home_qpos, np.float64)
 
 
 @dataclasses.dataclass(frozen=True)
 class ScenePlacement:
     """Where objects start and where scripted pushes may end.
 
+    The placement is the original's (robosuite's ``UniformRandomSampler`` with
+    ``ensure_valid_placement``): objects are placed one after the other, in the order of
+    :data:`OBJECT_NAMES`, each centre uniform in ``region`` (about the table centre, which is
+    the world origin) and redrawn while its horizontal distance to an object already placed is
+    at most the sum of their footprint radii; the yaw is uniform in ``yaw_range``; the object
+    starts ``drop_height`` above its resting height.
+
     Attributes:
-        region: world (x, y) ranges where objects start: in front of the arm, within comfortable
-            reach at table height, shifted to the right (-y) because the scripted pushes go left
-            (directions in [0, pi]) and must stay on the table.
-        gap: minimum free gap between two objects' footprints at reset (metres).
+        region: world (x, y) ranges of the objects' centres at reset.
         yaw_range: range of the objects' uniform initial yaw (radians).
-        max_draws: placement draws before a reset gives up.
+        drop_height: height above rest at which objects start (they fall onto the table during
+            the first step).
+        max_draws: draws per object before a reset gives up (robosuite's 5000).
         initial_layout: object (x, y) before the first reset (a valid, deterministic state).
-        target_region: world (x, y) ranges where a scripted push may end: on the table with
-            every object's centre at least 6 cm from its edges, and not so far from the robot
-            (x > 0.15) that the arm pushes poorly there.
+        target_region: world (x, y) ranges where a scripted push may end: the original
+            collection script clamps each coordinate of a push target to +-0.35 m.
     """
 
-    region: Range = ((-0.22, 0.1), (-0.26, 0.09))
-    gap: float = 0.03
+    region: Range = ((-0.1, 0.3), (-0.15, 0.15))
     yaw_range: tuple[float, float] = (0.0, 2.0 * math.pi)
-    max_draws: int = 1000
+    drop_height: float = 0.01
+    max_draws: int = 5000
     initial_layout: tuple[tuple[float, float], ...] = (
-        (-0.1, -0.15), (-0.1, 0.15), (0.05, -0.1), (0.05, 0.1),
+        (0.0, -0.1), (0.0, 0.1), (0.2, -0.1), (0.2, 0.1),
     )  # fmt: skip
-    target_region: Range = ((-0.3, 0.15), (-0.26, 0.26))
+    target_region: Range = ((-0.35, 0.35), (-0.35, 0.35))
 
 
 @dataclasses.dataclass(frozen=True)
 class SceneController:
-    """The arm's controller: robosuite's ``OSC_POSITION`` (orientation held) and ``GRIP``.
+    """The arm's controller: robosuite's ``OSC_POSITION`` and ``GRIP``, as the original ran it.
 
     Attributes:
-        control_freq: control steps per second. robosuite's default of 20 Hz moves the end
-            effector at most 1.2 cm per step, too little to reach an object and push it 0.3 m in
-            35 steps (SPEC §3); at 5 Hz (100 physics steps of 2 ms) a full action moves it about
-            3.6 cm and the arm stops within about a step of a zero action.
-        output_max: largest end-effector goal displacement per control step (m; a full action,
-            robosuite's default).
+        control_freq: control steps per second: 1 Hz, one action is 500 physics steps of 2 ms,
+            long enough for the hand to reach its goal (at most ``output_max`` away per axis)
+            and come to rest within the step.
+        output_max: largest end-effector goal displacement per control step and axis (m; a full
+            action, robosuite's default).
         input_max: the action magnitude mapped to ``output_max``.
-        kp: the OSC's position stiffness (robosuite's default).
+        kp: the OSC's stiffness (robosuite's default; position and orientation).
         damping_ratio: the OSC's damping ratio (``kd = 2 sqrt(kp) damping_ratio``).
         nullspace_kp: stiffness of the nullspace pull towards the episode's initial joints
             (robosuite's ``nullspace_torques`` uses 10; :mod:`vp2.envs._osc_kernel`).
+        hand_orientation: the world orientation (rows of a rotation matrix) the OSC holds the
+            grip site at: robosuite 1.3's ``OSC_POSITION`` sets this goal (hand straight down)
+            at every control step, so the first step rotates out the initial pose's 7.3 degree
+            tilt. robosuite 1.5.2 would hold whatever orientation the hand has.
     """
 
-    control_freq: float = 5
+    control_freq: float = 1
     output_max: float = 0.05
     input_max: float = 1
     kp: float = 150
     damping_ratio: float = 1
     nullspace_kp: float = 10.0
+    hand_orientation: tuple[tuple[float, float, float], ...] = (
+        (0.0, 1.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, -1.0),
+    )  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
 class SceneCamera:
-    """The benchmark camera: fixed, in front of the table looking back at the robot from 45
-    degrees of elevation (like robosuite's ``agentview``), far away with a narrow field of view
-    so that objects look about the same size everywhere on the table: the closest such camera
-    that keeps the four table corners, the tops of objects anywhere in the placement and target
-    regions and the arm's forearm and hand in the 64x64 image
-    (``benchmarks/studies/tabletop_view_study.py``, docs/findings/environments.md).
+    """The benchmark camera: the original's ``agentview_shift_2`` (its robosuite fork's
+    ``table_arena.xml``), fixed in front of the table looking back at the robot, 36.9 degrees
+    below the horizontal; its optical axis meets the table top at (0.075, 0) from 0.751 m.
 
     Attributes:
         name: the camera's name in the model.
         pos: world position.
-        lookat: the point it looks at (z up).
-        fovy: vertical field of view, degrees.
+        quat: orientation quaternion (w, x, y, z); a MuJoCo camera looks along its -z axis.
+        fovy: vertical field of view, degrees (the original sets none: MuJoCo's default).
     """
 
-    name: str = "vp2_tabletop"
-    pos: tuple[float, float, float] = (2.696, 0.0, 3.741)
-    lookat: tuple[float, float, float] = (-0.245, 0.0, 0.8)
-    fovy: float = 10.0
+    name: str = "agentview_shift_2"
+    pos: tuple[float, float, float] = (0.6758858572576728, -4.76e-08, 1.251269639768581)
+    quat: tuple[float, float, float, float] = (
+        0.6325998902320862, 0.31593844294548035, 0.31593817472457886, 0.6326003670692444,
+    )  # fmt: skip
+    fovy: float = 45.0
 
 
-#: The 13 robosuite textures of the default scene (names of
-#: ``robosuite.utils.mjcf_utils.TEXTURE_FILES``), chosen for distinct mean colours (objects
-#: are a few pixels wide at 64x64) that stand out from the white ceramic table top.
+#: The 13 robosuite 1.5.2 textures standing in for the original's set (names of
+#: ``robosuite.utils.mjcf_utils.TEXTURES``). The original draws from Can, Tile0-Tile4,
+#: XmasOrnament, PaintedPlaster, Rocks, Chip, Fabric, Fabric2 and Candy, of which only
+#: ``can.png`` ships with robosuite 1.5.2; each other one is replaced by a stock texture
+#: (docs/tabletop.md has the pairs), none of them the floor's, the walls' or the table's.
 _DEFAULT_TEXTURES = (
-    "WoodRed", "WoodGreen", "WoodBlue", "Glass", "Lemon", "WoodDark", "WoodPanels", "Brass",
-    "Metal", "WoodLight", "Clay", "SteelScratched", "WoodTiles",
+    "Can", "BricksWhite", "WoodRed", "WoodGreen", "WoodBlue", "PlasterYellow", "Brass",
+    "PlasterPink", "Dirt", "Bread", "FeltGray", "Clay", "Lemon",
 )  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
 class SceneTextures:
-    """The textures every reset draws the objects' looks from (distinct per object).
+    """The textures every reset draws the objects' looks from: one uniform draw per object,
+    with replacement (two objects may share a texture), as in the original.
 
     Attributes:
         names: robosuite texture names; a state vector's texture ids index this tuple.
         specular, shininess: the materials' (one per texture, cube-mapped) MuJoCo settings.
+            The original draws one value from U(0, 1) per reset for specular, shininess and
+            reflectance of all four objects; here both are that draw's mean, fixed, and the
+            reflectance is 0 (a reflection costs a second scene pass per frame).
     """
 
     names: tuple[str, ...] = _DEFAULT_TEXTURES
-    specular: float = 0.4
-    shininess: float = 0.1
+    specular: float = 0.5
+    shininess: float = 0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneArena:
+    """The room around the table: the original's ``table_arena.xml`` look (its floor and wall
+    textures, its two lights) on robosuite 1.5.2's table arena.
+
+    Attributes:
+        floor_texture, wall_texture: robosuite texture names of the floor and the walls.
+        lights: ``(position, direction)`` of each light: spot lights (not directional) without
+            shadows, all with ``light_diffuse`` and ``light_specular``.
+        light_diffuse, light_specular: the lights' diffuse and specular intensity (grey).
+    """
+
+    floor_texture: str = "WoodTiles"
+    wall_texture: str = "PlasterCream"
+    lights: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = (
+        ((1.0, 1.0, 4.0), (0.0, -0.15, -1.0)),
+        ((-3.0, -3.0, 4.0), (0.0, -0.15, -1.0)),
+    )
+    light_diffuse: float = 0.8
+    light_specular: float = 0.3
 
 
 #: The benchmark camera's render specification. The quality knobs were chosen by measurement
@@ -304,17 +344,13 @@ _DEFAULT_RENDER = RenderSpec(
 
 
 def _default_objects() -> tuple[SceneObject, ...]:
-    # No object is taller than 5 cm: the Panda hand starts 3 cm above the grip site, so at
-    # pushing height only the fingers touch the objects (a taller one would meet the hand).
-    # MuJoCo's default 3-D contacts have no rolling resistance, so a pushed ball would roll on
-    # at constant speed (off the table): 6-D contacts and a rolling friction of 0.004 m (a ball
-    # pushed at 0.2 m/s stops within about 2 cm of where the push ends), like a rubber ball on a
-    # cloth-covered table.
+    # SPEC §1.2's objects and frictions. The original gives the small cube no friction, i.e.
+    # robosuite's default (1.0, 0.005, 0.0001); SPEC's 0.7 is used (docs/tabletop.md).
     return (
-        SceneObject("large_cube", "box", (0.025, 0.025, 0.025)),
-        SceneObject("small_cube", "box", (0.0175, 0.0175, 0.0175)),
-        SceneObject("cylinder", "cylinder", (0.025, 0.025)),
-        SceneObject("sphere", "ball", (0.025,), friction=(0.5, 0.005, 0.004), condim=6),
+        SceneObject("large_cube", "box", (0.06, 0.06, 0.06)),
+        SceneObject("small_cube", "box", (0.04, 0.04, 0.04)),
+        SceneObject("cylinder", "cylinder", (0.06, 0.06)),
+        SceneObject("sphere", "ball", (0.07,), friction=(0.5, 0.005, 0.0001)),
     )
 
 
@@ -327,7 +363,7 @@ class TabletopScene:
 
     Attributes:
         objects: the four objects, in the order of :data:`OBJECT_NAMES`.
-        table, robot, placement, controller, camera, textures: the scene's parts.
+        table, robot, placement, controller, camera, textures, arena: the scene's parts.
         render: the render specification (its ``camera`` names :attr:`camera`).
         solver_arena: MuJoCo's arena per ``MjData`` (``<size memory=...>``). robosuite's base
             model sizes the solver for 5,000 contacts and rows, which makes every ``MjData``
@@ -345,6 +381,7 @@ class TabletopScene:
     controller: SceneController = SceneController()
     camera: SceneCamera = SceneCamera()
     textures: SceneTextures = SceneTextures()
+    arena: SceneArena = SceneArena()
     render: RenderSpec = _DEFAULT_RENDER
     solver_arena: str | None = "16M"
 
@@ -386,13 +423,14 @@ class TabletopScene:
         return {o.name: o.footprint for o in self.objects}
 
     def render_description(self) -> dict[str, Any]:
-        """What the tabletop's render fingerprint hashes of the scene: the render spec and the
-        camera's placement. ``vp2.envs.render_specs.render_fingerprint("tabletop", scene)`` adds
-        the env and the render path's version and hashes it."""
-        cam = self.camera
+        """What the tabletop's render fingerprint hashes of the scene: the render spec, the
+        camera's placement and the arena's look (floor, walls, lights).
+        ``vp2.envs.render_specs.render_fingerprint("tabletop", scene)`` adds the env and the
+        render path's version and hashes it."""
         return {
             "spec": dataclasses.asdict(self.render),
-            "camera": {"CAMERA_POS": cam.pos, "CAMERA_LOOKAT": cam.lookat, "CAMERA_FOVY": cam.fovy},
+            "camera": dataclasses.asdict(self.camera),
+            "arena": dataclasses.asdict(self.arena),
         }
 
     # ---- as data ---------------------------------------------------------------------------
@@ -427,7 +465,7 @@ class TabletopScene:
 
 _PARTS.update(
     table=SceneTable, robot=SceneRobot, placement=ScenePlacement, controller=SceneController,
-    camera=SceneCamera, textures=SceneTextures, render=RenderSpec,
+    camera=SceneCamera, textures=SceneTextures, arena=SceneArena, render=RenderSpec,
 )  # fmt: skip
 
 
