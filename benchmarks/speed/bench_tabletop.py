@@ -1,4 +1,5 @@
-"""Tabletop environment: speed, render fidelity, dynamics identity and scripted-policy success.
+"""Tabletop environment: speed, hand response, render fidelity, object sizes, dynamics identity
+and scripted-policy success.
 
 Sections (``--section``, default ``all``):
 
@@ -6,11 +7,16 @@ Sections (``--section``, default ``all``):
   against the same robosuite environment stepped with robosuite's own ``env.step`` and its
   own camera observation at 64x64 (``use_camera_obs=True``, robosuite's rendering quality),
   interleaved step by step in one process so that machine load hits both alike; also our
-  step without rendering, and the floor: the raw ``mujoco.mj_step`` calls one control step
-  needs (25 per 0.05 s of simulated time; one control step is 0.2 s = 100 physics steps).
-* ``fidelity``: mean absolute pixel error of ``RENDER_SPEC`` against
-  ``RENDER_SPEC.full_quality()`` at 64x64 over many varied states (random initial states plus
-  random actions), and the render time of each.
+  step without rendering, a reset with its 64x64 observation, and the floor: the raw
+  ``mujoco.mj_step`` calls one control step needs (one control step is 1 s = 500 physics
+  steps of 2 ms).
+* ``hand``: from resets, how far the action (0, 1, 0, 0) moves the grip site in one step and
+  how far it drifts under the next zero action.
+* ``fidelity``: mean absolute pixel error at 64x64 against the original's way of rendering
+  (``RENDER_SPEC.full_quality()`` at 256x256, then an anti-aliased bilinear resize to 64x64,
+  :func:`vp2.envs.rendering.antialiased_bilinear`) over varied states (random initial states
+  plus random actions), of the env's own render (``RENDER_SPEC`` at 64x64) and alternatives,
+  and the render time of each.
 * ``visibility``: visible pixels of each object at 64x64 (segmentation renders of the
   benchmark camera) at reset and after 12 policy steps, and the share of objects that are
   less than a quarter visible (under the hand).
@@ -48,7 +54,7 @@ from vp2.data.policies.base import NoisyPolicy  # noqa: E402
 from vp2.data.policies.tabletop import make_tabletop_policy  # noqa: E402
 from vp2.envs._tabletop_stepper import LeanStepper  # noqa: E402
 from vp2.envs._tabletop_world import TabletopWorld  # noqa: E402
-from vp2.envs.rendering import Renderer, mean_abs_error  # noqa: E402
+from vp2.envs.rendering import Renderer, antialiased_bilinear, mean_abs_error  # noqa: E402
 from vp2.envs.tabletop import DEFAULT_SCENE, OBJECT_NAMES, TabletopEnv  # noqa: E402
 
 #: The benchmark scene's render specification.
@@ -65,18 +71,14 @@ def _sim_state(world: TabletopWorld) -> np.ndarray:
 
 
 def _varied_states(env: TabletopEnv, count: int, seed: int) -> list[np.ndarray]:
-    """States from random resets followed by 0-20 random actions (a few scripted pushes too)."""
+    """States from random resets followed by 0-8 random actions (biased down, so that the hand
+    reaches the objects and pushes some)."""
     rng = np.random.default_rng(seed)
     states = []
     for i in range(count):
         env.reset(seed=seed + i)
-        if i % 2:
-            policy = make_tabletop_policy(env, np.random.default_rng(i))
-            for _ in range(int(rng.integers(5, 25))):
-                env.step(policy.act())
-        else:
-            for _ in range(int(rng.integers(0, 20))):
-                env.step(rng.uniform(-1, 1, 4))
+        for _ in range(int(rng.integers(0, 9))):
+            env.step(np.array([*rng.uniform(-1, 1, 2), rng.uniform(-1, 0.3), 0.0]))
         states.append(env.get_state())
     return states
 
@@ -126,51 +128,86 @@ def bench_speed(steps: int) -> dict:
         "physics_steps_per_control_step": n_substeps,
         "speedup_vs_robosuite_with_render": med["robosuite"] / med["ours"],
         "blind_step_over_floor": med["ours_blind"] / med["floor"],
+        "reset_ms": _reset_ms(steps),
+    }
+
+
+def _reset_ms(count: int) -> float:
+    """Median time of ``reset`` with its 64x64 observation (after a warm-up reset)."""
+    env = TabletopEnv("push_large_cube", seed=0, observation_size=64)
+    env.reset(seed=0)
+    times = []
+    for i in range(count):
+        t0 = time.perf_counter()
+        env.reset(seed=i + 1)
+        times.append(time.perf_counter() - t0)
+    env.close()
+    return statistics.median(times) * 1e3
+
+
+def bench_hand(resets: int) -> dict:
+    """Grip-site motion (m) of the action (0, 1, 0, 0) from a reset, and its drift under the
+    next zero action."""
+    env = TabletopEnv("push_large_cube", seed=0, observation_size=None)
+    moved, drift = [], []
+    for i in range(resets):
+        env.reset(seed=i)
+        start = env.end_effector_position()
+        env.step(np.array([0.0, 1.0, 0.0, 0.0]))
+        after = env.end_effector_position()
+        env.step(np.zeros(4))
+        moved.append(float(np.linalg.norm(after - start)))
+        drift.append(float(np.linalg.norm(env.end_effector_position() - after)))
+    env.close()
+    return {
+        "resets": resets,
+        "move_m": {"median": statistics.median(moved), "min": min(moved), "max": max(moved)},
+        "drift_m": {"median": statistics.median(drift), "min": min(drift), "max": max(drift)},
     }
 
 
 def bench_fidelity(count: int) -> dict:
     env = TabletopEnv("push_large_cube", seed=0, observation_size=None)
     states = _varied_states(env, count, seed=1000)
+    render_model = env._world.render_model(RENDER_SPEC.mesh_reduction)
+    full = RENDER_SPEC.full_quality()
+    # name: (renderer, render size before the anti-aliased resize to 64x64)
     candidates = {
-        "full quality": RENDER_SPEC.full_quality(),
-        "no reflection": dataclasses.replace(RENDER_SPEC.full_quality(), reflection=False),
-        "RENDER_SPEC": RENDER_SPEC,
+        "original way": (Renderer(env._model, full), 256),
+        "full quality at 64": (Renderer(env._model, full), 64),
+        "RENDER_SPEC at 256 + resize": (Renderer(env._model, RENDER_SPEC, render_model), 256),
+        "RENDER_SPEC + 4x MSAA": (
+            Renderer(env._model, dataclasses.replace(RENDER_SPEC, multisamples=4), render_model),
+            64,
+        ),
+        "RENDER_SPEC (the env's)": (Renderer(env._model, RENDER_SPEC, render_model), 64),
     }
-    renderers = {name: Renderer(env._model, spec) for name, spec in candidates.items()}
     images: dict[str, list[np.ndarray]] = {name: [] for name in candidates}
     times: dict[str, list[float]] = {name: [] for name in candidates}
     for state in states:
         env.reset_to(state)
         mujoco.mj_kinematics(env._model, env._data)
         mujoco.mj_camlight(env._model, env._data)
-        for name, renderer in renderers.items():
+        for name, (renderer, size) in candidates.items():
             t0 = time.perf_counter()
-            images[name].append(renderer.render(env._data, 64))
+            image = renderer.render(env._data, size)
+            if size != 64:
+                image = antialiased_bilinear(image, 64, 64)
             times[name].append(time.perf_counter() - t0)
-    for renderer in renderers.values():
+            images[name].append(image)
+    for renderer, _ in candidates.values():
         renderer.close()
     rows = {}
     for name in candidates:
         errors = [
-            mean_abs_error(a, b) for a, b in zip(images[name], images["full quality"], strict=True)
+            mean_abs_error(a, b) for a, b in zip(images[name], images["original way"], strict=True)
         ]
         rows[name] = {
             "mae_mean": float(np.mean(errors)),
             "mae_max": float(np.max(errors)),
             "render_ms": statistics.median(times[name][1:]) * 1e3,
         }
-    return {
-        "states": count,
-        "candidates": rows,
-        "spec": {
-            "shadow_size": RENDER_SPEC.shadow_size,
-            "shadow_lights": RENDER_SPEC.shadow_lights,
-            "multisamples": RENDER_SPEC.multisamples,
-            "reflection": RENDER_SPEC.reflection,
-            "skybox": RENDER_SPEC.skybox,
-        },
-    }
+    return {"states": count, "candidates": rows, "spec": dataclasses.asdict(RENDER_SPEC)}
 
 
 def bench_visibility(states: int) -> dict:
@@ -288,7 +325,7 @@ def main() -> None:
     parser = common.argument_parser(__spec__.name, __doc__)
     parser.add_argument(
         "--section",
-        choices=["all", "speed", "fidelity", "visibility", "dynamics", "policy"],
+        choices=["all", "speed", "hand", "fidelity", "visibility", "dynamics", "policy"],
         default="all",
     )
     parser.add_argument("--steps", type=int, default=30, help="timed control steps (speed)")
@@ -304,7 +341,7 @@ def main() -> None:
         "mujoco_gl": os.environ.get("MUJOCO_GL"),
     }
     sections = (
-        ["speed", "fidelity", "visibility", "dynamics", "policy"]
+        ["speed", "hand", "fidelity", "visibility", "dynamics", "policy"]
         if args.section == "all"
         else [args.section]
     )
@@ -329,15 +366,23 @@ def main() -> None:
             print(f"| {label} | {m[k]:.2f} | {q[0]:.2f}-{q[1]:.2f} |")
         print(
             f"\nspeed-up vs robosuite (with rendering): {r['speedup_vs_robosuite_with_render']:.2f}x;"
-            f" blind step / floor: {r['blind_step_over_floor']:.2f}x"
+            f" blind step / floor: {r['blind_step_over_floor']:.2f}x;"
+            f" reset + 64x64 observation: {r['reset_ms']:.2f} ms"
         )
+    if "hand" in sections:
+        r = report["hand"] = bench_hand(min(args.states, 20))
+        mv, dr = r["move_m"], r["drift_m"]
+        print(f"\n## Hand response to (0, 1, 0, 0) from {r['resets']} resets (cm)\n")
+        print("| | median | min | max |\n|---|---|---|---|")
+        for label, c in (("moved in the step", mv), ("drift under the next zero action", dr)):
+            print(f"| {label} | {c['median']*100:.3f} | {c['min']*100:.3f} | {c['max']*100:.3f} |")
     if "fidelity" in sections:
         r = report["fidelity"] = bench_fidelity(args.states)
         print(
             f"\n## Render fidelity over {r['states']} states (64x64), RENDER_SPEC = {r['spec']}\n"
         )
         print(
-            "| render settings | MAE vs full quality (/255) | max over states | render ms |\n|---|---|---|---|"
+            "| render | MAE vs the original way (/255) | max over states | render ms |\n|---|---|---|---|"
         )
         for name, c in r["candidates"].items():
             print(f"| {name} | {c['mae_mean']:.2f} | {c['mae_max']:.2f} | {c['render_ms']:.2f} |")
@@ -355,7 +400,7 @@ def main() -> None:
             ]
             print(f"| {phase} | " + " | ".join(cells) + f" | {c['hidden_share']:.1%} |")
     if "dynamics" in sections:
-        r = report["dynamics"] = bench_dynamics(episodes=4, steps=35)
+        r = report["dynamics"] = bench_dynamics(episodes=4, steps=12)
         print(f"\n## Dynamics vs robosuite env.step ({r['episodes']} x {r['steps']} steps)\n")
         print(f"max |state difference| = {r['max_abs_state_difference']:.3g}")
     if "policy" in sections:

@@ -29,7 +29,7 @@ def test_the_same_in_another_process():
 def test_moves_with_the_camera_the_spec_and_the_render_path(monkeypatch):
     tabletop, robodesk = render_fingerprint("tabletop"), render_fingerprint("robodesk")
     default = tabletop_scene.DEFAULT_SCENE
-    assert render_description("tabletop")["camera"]["CAMERA_FOVY"] == default.camera.fovy
+    assert render_description("tabletop")["camera"]["fovy"] == default.camera.fovy
     moved_camera = dataclasses.replace(default.camera, pos=(2.0, 0.0, 3.0))
     other = dataclasses.replace(default, camera=moved_camera)
     moved = render_fingerprint("tabletop", scene=other)

@@ -94,9 +94,9 @@ def test_the_default_scene_is_the_benchmarks_scene():
         "agentview_shift_2", 256, (), False, 0.7
     )
     assert (r.multisamples, r.reflection, r.plane_spacing) == (0, False, 0.5)
-    assert (r.numslices, r.numstacks, r.numquads) == (16, 8, 1)
+    assert (r.numslices, r.numstacks, r.numquads) == (16, 8, 4)
     assert s.solver_arena == "16M"
-    assert render_fingerprint("tabletop") == render_fingerprint("tabletop", s) == "cc2ca32c477856c4"
+    assert render_fingerprint("tabletop") == render_fingerprint("tabletop", s) == "cbf9214bbc293f3b"
 
 
 def test_a_variant_moves_rest_heights_and_footprints_together():

@@ -1,13 +1,13 @@
 """The tabletop scene as one value: every number that fixes the tabletop environment.
 
 A :class:`TabletopScene` is a frozen dataclass of frozen parts -- the objects
-(:class:`SceneObject`: shape, size, density, friction, contact dimension, colour), the table
-(:class:`SceneTable`), the robot's placement and initial pose (:class:`SceneRobot`), where
-objects start and where pushes may end (:class:`ScenePlacement`), the arm's controller
-(:class:`SceneController`), the benchmark camera (:class:`SceneCamera`), the objects'
-textures (:class:`SceneTextures`) and the render specification -- and the numbers derived from
-them (rest heights, footprints, the table's bounds, what the render fingerprint hashes) are
-computed from it, never written twice. :data:`DEFAULT_SCENE` is the benchmark's scene.
+(:class:`SceneObject`), the table (:class:`SceneTable`), the robot's placement and initial pose
+(:class:`SceneRobot`), where objects start and where pushes may end (:class:`ScenePlacement`),
+the arm's controller (:class:`SceneController`), the camera (:class:`SceneCamera`), the
+objects' textures (:class:`SceneTextures`), the room's look (:class:`SceneArena`) and the render
+specification -- and the numbers derived from them (rest heights, footprints, the table's
+bounds, what the render fingerprint hashes) are computed from it, never written twice.
+:data:`DEFAULT_SCENE` is the benchmark's scene: SPEC §1.2, the original release's.
 
 The world and the environment are built from a scene (``TabletopEnv(task, scene=...)``,
 ``TabletopWorld(scene)``), the default when none is given. A variant is a
@@ -18,9 +18,8 @@ The world and the environment are built from a scene (``TabletopEnv(task, scene=
     env = TabletopEnv("push_sphere", scene=big)
 
 An environment built from another scene records it in its metadata
-(:meth:`TabletopScene.to_dict`, rebuilt by :meth:`TabletopScene.from_dict`), so datasets, task
-instances and the simulator oracle rebuild the same scene; the default scene records nothing
-(the shipped suite's metadata predates the scene value).
+(:meth:`TabletopScene.to_dict`, rebuilt by :meth:`TabletopScene.from_dict`); the default scene
+records nothing.
 
 This module imports no simulator: reading the scene (the render fingerprint included) is cheap.
 """
@@ -320,26 +319,23 @@ class SceneArena:
     light_specular: float = 0.3
 
 
-#: The benchmark camera's render specification. The quality knobs were chosen by measurement
-#: (``benchmarks/speed/bench_tabletop.py``, ``benchmarks/speed/bench_render_floor.py``,
-#: docs/measurements.md): the arena's only light casts no shadow, so no shadow pass is drawn (a
-#: small shadow map saves GL memory); the floor's 1% reflectance would re-render the whole
-#: scene for no visible effect from this camera; multisampling costs more than half of the
-#: render time on a software rasteriser. The frame is then geometry-bound (the Panda's and its
-#: pedestal's visual meshes, 168k triangles), so the renderer draws a render-only model with
-#: those meshes decimated by 70% (``mesh_reduction=0.7``; 80% and more visibly facets the
-#: base's rings and costs ~0.5-1.6/255), the floor tessellated into 0.5 m squares and the
-#: built-in primitives more coarsely; the physics model is untouched. Mean absolute error
-#: against ``full_quality()`` (original meshes) at 64x64: 6.46/255 on average, 7.15/255 at most
-#: over 56 varied states (budget 8/255); 5.0 ms per frame vs 13.1 ms with the original meshes
-#: (2026-11-24, load ~4). See docs/measurements.md.
+#: The benchmark camera's render specification, chosen by measurement against the original's
+#: way of rendering (``full_quality()`` at 256x256, then an anti-aliased bilinear resize to
+#: 64x64; ``benchmarks/speed/bench_tabletop.py --section fidelity``, docs/tabletop.md). The
+#: arena's lights cast no shadow, so no shadow pass is drawn (a small shadow map saves GL
+#: memory); no reflection pass (matte materials); no multisampling (it costs more than half of
+#: the render time on a software rasteriser); the Panda's and its pedestal's visual meshes
+#: decimated by 70% in a render-only model (the arm is at the top edge of the image). Boxes
+#: keep MuJoCo's default of 4 quads per face edge: the fixed-function pipeline lights per
+#: vertex, and with one quad the lit gradient over the table top, which fills most of the
+#: image, is lost (twice the pixel error).
 _DEFAULT_RENDER = RenderSpec(
     camera=SceneCamera.name,
     shadow_size=256,
     shadow_lights=(),
     skybox=False,
     mesh_reduction=0.7,
-    **SOFTWARE_RENDERING,
+    **{**SOFTWARE_RENDERING, "numquads": 4},
 )
 
 
@@ -366,10 +362,8 @@ class TabletopScene:
         table, robot, placement, controller, camera, textures, arena: the scene's parts.
         render: the render specification (its ``camera`` names :attr:`camera`).
         solver_arena: MuJoCo's arena per ``MjData`` (``<size memory=...>``). robosuite's base
-            model sizes the solver for 5,000 contacts and rows, which makes every ``MjData``
-            reserve 1.26 GB; this world uses 19 contacts and 69 rows at most (0.08 MB). A process
-            holding a few such reservations has one anonymous mapping larger than the machine's
-            RAM, and Linux refuses to fork it. 16 MB is 200 times what a trajectory uses; the
+            model reserves 1.26 GB per ``MjData`` (5,000 contacts and rows), and Linux refuses
+            to fork a process holding a few; a trajectory uses well under 1 MB, and the
             dynamics do not depend on it. ``None`` keeps robosuite's sizes
             (``benchmarks/checks/env_memory.py`` compares the two).
     """
