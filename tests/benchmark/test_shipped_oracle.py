@@ -302,6 +302,9 @@ def test_the_packaged_asset_loads_if_there_is_one(monkeypatch):
         assert all(t.suite_format == SUITE_FORMAT and t.tasks for t in oracle.tables)
 
 
+@pytest.mark.xfail(
+    reason="tabletop suite v3 predates the paper's scene; regenerated with suite v4", strict=True
+)
 def test_the_shipped_table_normalises_a_run_of_the_shipped_classifiers(monkeypatch):
     """A 50-sample run of every category, planned as `vp2 run` plans today (the shipped
     classifier files at each task's weight), is normalised on every task by the packaged

@@ -3,9 +3,11 @@
 A machine cannot run another CPU, but the libraries that choose code by CPU at run time can be
 forced to the choices other CPUs make: OpenBLAS (numpy's and scipy's, ``OPENBLAS_CORETYPE``),
 NumPy's SIMD loops (``NPY_DISABLE_CPU_FEATURES``), numba's code generation
-(``NUMBA_CPU_NAME``) and Mesa llvmpipe's (``GALLIUM_OVERRIDE_CPU_CAPS``). Each variant
-regenerates the first instance of every task category in a fresh process (fresh mesh cache);
-states, actions and goal images must be identical to the machine's own defaults.
+(``NUMBA_CPU_NAME``) and Mesa llvmpipe's (``GALLIUM_OVERRIDE_CPU_CAPS``). Each variant, in a fresh process (fresh mesh
+cache), regenerates the first instance of every task category (``None`` where the task's
+scripted policy finds none from that seed) and rolls every category's env out from a seeded
+reset with fixed random actions, rendering each step; states, actions and images must be
+identical to the machine's own defaults.
 """
 
 from __future__ import annotations
@@ -39,13 +41,24 @@ _SCRIPT = textwrap.dedent(
     import hashlib, json
     import numpy as np
     from vp2.data.suite import TaskSuite, generate_instance
+    from vp2.envs import make_env
     out, suite = {}, TaskSuite.load()
     for task in suite.tasks:
         seed = suite.for_task(task)[0].seed
         inst = generate_instance(task, seed, index=0)
         h = hashlib.sha256()
-        for a in (inst.init_state, inst.goal_state, inst.goal_image, inst.actions):
-            h.update(np.ascontiguousarray(a).tobytes())
+        if inst is None:
+            h.update(b"none")
+        else:
+            for a in (inst.init_state, inst.goal_state, inst.goal_image, inst.actions):
+                h.update(np.ascontiguousarray(a).tobytes())
+        with make_env(task, seed=seed, observation_size=64) as env:
+            obs, _ = env.reset(seed=seed)
+            h.update(env.get_state().tobytes() + obs.tobytes())
+            dim = env.action_space.shape[0]
+            for a in np.random.default_rng(seed).uniform(-1, 1, (3, dim)):
+                obs, *_ = env.step(a)
+                h.update(env.get_state().tobytes() + obs.tobytes())
         out[task] = h.hexdigest()
     print(json.dumps(out))
     """
