@@ -49,6 +49,11 @@ class ScriptedPolicy(abc.ABC):
         whose criterion needs no goal. Valid after :meth:`reset`."""
         return None
 
+    def bound(self, action: np.ndarray) -> np.ndarray:
+        """Applied to the final action, after any noise (default: unchanged). A policy whose
+        script limits where the hand may go (the tabletop's) overrides it."""
+        return action
+
 
 #: Action-noise σ of the training data (SPEC §3). Tabletop: 0.05 on every action dimension but
 #: the gripper. RoboDesk: 0.1 on even and 0.2 on odd trajectories of a stream (half and half).
@@ -84,4 +89,4 @@ class NoisyPolicy(ScriptedPolicy):
     def act(self) -> np.ndarray:
         action = self.policy.act()
         noise = self.rng.standard_normal(action.shape) * self.sigma
-        return np.clip(action + noise, -1.0, 1.0)
+        return self.policy.bound(np.clip(action + noise, -1.0, 1.0))
