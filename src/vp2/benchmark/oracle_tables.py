@@ -164,6 +164,9 @@ def _problem(table: OracleTable, task: str, shas: dict[int, str], fingerprints: 
              classifiers: Sequence[tuple[Any, Any] | None] = ()) -> tuple[Any, ...] | None:
     """Why ``table`` may not normalise ``task`` (a note's key), ``None`` if it may.
 
+    A table measured on another suite version normalises the task only where it fingerprinted
+    every instance the run used (``shas``) and each fingerprint matches.
+
     ``classifiers`` are the :func:`_classifier_key` of every success classifier the run's
     trials of the task planned with (``None`` for a pixel-only cost; empty where the records
     do not say); a table measured with another classifier file or weight does not normalise
@@ -172,7 +175,11 @@ def _problem(table: OracleTable, task: str, shas: dict[int, str], fingerprints: 
     from vp2.data.suite import SUITE_FORMAT
 
     env = task.split("/")[0]
-    if table.suite_format != SUITE_FORMAT:
+    # A table of an earlier suite still normalises a task whose instances it fingerprinted
+    # and the run used unchanged (a new suite version may regenerate only some categories).
+    if table.suite_format != SUITE_FORMAT and not (
+        shas and all(table.instance_fingerprints.get(f"{task}#{i}") == sha for i, sha in shas.items())
+    ):
         return ("suite", table.name, table.suite_format)
     if table.render.get(env) != fingerprints[env]:
         return ("render", table.name, env, table.render.get(env), fingerprints[env])

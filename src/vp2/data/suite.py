@@ -4,7 +4,7 @@ A :class:`TaskInstance` is an initial simulator state, a goal state and its 64×
 the scripted actions that reach the goal from the initial state, and the environment
 metadata.
 
-Instances start along scripted trajectories (suite version 2, SPEC §2), as in the original
+Instances start along scripted trajectories (SPEC §2), as in the original
 release: the task's noise-free scripted policy runs from a randomised reset for at most
 :data:`HORIZON` steps; ``k`` is the first step at which the success criterion holds; a look-back
 ``L`` is drawn per instance from :data:`LOOKBACK_RANGE` (it ends at
@@ -13,8 +13,11 @@ difficulty); the initial state is the state at ``s = max(0, k - L)`` and the goa
 ``k`` -- or one settling step later if it still succeeds and the instance stays within 12
 actions. The stored actions are those from ``s`` to the goal, so replaying them reaches success
 in at most 12 actions (tested). An instance whose initial state already satisfies the success
-criterion is rejected. On the tabletop, whose criterion is relative to the goal, ``k`` is judged
-against the policy's push target and the goal is the state actually reached.
+criterion is rejected. On the tabletop, whose criterion is relative to the goal, the goal is,
+as in the original release, where the push ended: the policy runs all :data:`HORIZON` steps,
+the trajectory must pass the original's keep filter (the task's object moved more than
+:data:`KEEP_MOTION`, none fell off), and ``k`` is the first step within the criterion of the
+end state (:func:`_tabletop_trajectory`).
 
 Generation is deterministic: attempt ``k`` of a task uses a seed derived from
 ``(suite seed, task, k)``, attempts are accepted in order, and the file is written with fixed
@@ -277,19 +280,25 @@ def generate_instance(
     env.reset(seed=int(reset_seed))
     policy = make_task_policy(env, np.random.default_rng(policy_seed))
     policy.reset()
-    target = policy.goal_state()
-    if env.is_success(target):
-        return None
-    states, actions = [env.get_state()], []
-    for _ in range(HORIZON):
-        action = env.check_action(policy.act())
-        env.step(action)
-        actions.append(action)
-        states.append(env.get_state())
-        if env.is_success(target):
-            break
+    if split_name(task)[0] == "tabletop":
+        found = _tabletop_trajectory(env, policy)
+        if found is None:
+            return None
+        states, actions, target = found
     else:
-        return None
+        target = policy.goal_state()
+        if env.is_success(target):
+            return None
+        states, actions = [env.get_state()], []
+        for _ in range(HORIZON):
+            action = env.check_action(policy.act())
+            env.step(action)
+            actions.append(action)
+            states.append(env.get_state())
+            if env.is_success(target):
+                break
+        else:
+            return None
     success_step = len(actions)
     start = max(0, success_step - lookback)
     # One more scripted step lets a falling block land or a pushed object settle; it is
@@ -319,6 +328,52 @@ def generate_instance(
         env_meta=env.serialize(),
         start_step=start,
     )
+
+
+#: The original's keep filter (SPEC §3): the pushed object moved more than this in the table
+#: plane (metres) ...
+KEEP_MOTION = 0.08
+#: ... and no object fell off the table (|Δz| beyond this, metres).
+FELL_OFF = 0.5
+
+
+def _succeeds(env: Env, state: np.ndarray, goal: np.ndarray) -> bool:
+    env.reset_to(state)
+    return env.is_success(goal)
+
+
+def _tabletop_trajectory(env: Env, policy: Any) -> tuple[list, list, np.ndarray] | None:
+    """The tabletop's scripted trajectory up to its first success against its end state.
+
+    As in the original release, the goal is where the push ended, not where it aimed: the
+    policy runs :data:`HORIZON` steps; the trajectory is rejected unless the task's object moved
+    more than :data:`KEEP_MOTION` in xy and no object fell off (:data:`FELL_OFF`); ``k`` is the
+    first step whose state satisfies the success criterion against the end state. Returns the
+    states ``0 .. k``, the actions ``1 .. k`` and the end state; the env is left at state ``k``
+    and the policy at step ``k``. ``None`` when rejected.
+    """
+    start_positions = env.object_positions()
+    states, actions = [env.get_state()], []
+    for _ in range(HORIZON):
+        action = env.check_action(policy.act())
+        env.step(action)
+        actions.append(action)
+        states.append(env.get_state())
+    end = env.object_positions()
+    k = policy.object_index
+    if (
+        np.linalg.norm(end[k, :2] - start_positions[k, :2]) <= KEEP_MOTION
+        or np.abs(end[:, 2] - start_positions[:, 2]).max() > FELL_OFF
+    ):
+        return None
+    target = states[-1]
+    step = next(t for t in range(len(states)) if _succeeds(env, states[t], target))
+    if step == 0:
+        return None
+    # Back to step k: the policy's next action is step k + 1's (the settling step's).
+    env.reset_to(states[step])
+    policy.step_count = step
+    return states[: step + 1], actions[:step], target
 
 
 def _attempt(job: tuple[str, int, int]) -> TaskInstance | None:
