@@ -173,7 +173,7 @@ def test_the_checker_sees_an_import_named_as_a_string(tmp_path):
     assert imported_modules("vp2.envs.base", f, known) == {"vp2.benchmark.runner", "vp2.benchmark"}
 
 
-@pytest.mark.parametrize("mod", ["vp2.benchmark.config", "vp2.benchmark.model_spec"])
+@pytest.mark.parametrize("mod", ["vp2.run.config", "vp2.run.model_spec"])
 def test_light_modules_do_not_import_torch(mod):
     """Reading a run's config (and resolving ``--model`` strings) must not load torch."""
     import subprocess

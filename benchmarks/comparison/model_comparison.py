@@ -106,11 +106,9 @@ from benchmarks.comparison.model_comparison_results import (
     relative_link,
     results_markdown,
 )
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.diagnose import DiagnoseConfig, diagnose_model, measure_conditioning
-from vp2.benchmark.model_spec import ModelSpec, resolve_model
 from vp2.benchmark.runner import RunResult, run_benchmark
 from vp2.data.storage import DatasetError, load_manifest
+from vp2.diagnose.model import DiagnoseConfig, diagnose_model, measure_conditioning
 from vp2.envs import env_class
 from vp2.metrics.evaluate import DEFAULT_BATCH_SIZE, evaluate_model, write_metrics
 from vp2.metrics.fvd import FrechetVideoDistance
@@ -118,6 +116,8 @@ from vp2.planning.config import PlannerConfig
 from vp2.report.page import write_report, write_run_report
 from vp2.report.study import study
 from vp2.report.study_output import write_study
+from vp2.run.config import RunConfig
+from vp2.run.model_spec import ModelSpec, resolve_model
 from vp2.training.checkpoint import list_checkpoints
 from vp2.training.config import TrainConfig
 from vp2.training.perceptual import MissingWeightsError
@@ -386,7 +386,7 @@ def model_spec(family: str, records: Sequence[dict[str, Any]]) -> str:
 
 def conditioning_stage(s: Settings, family: str, spec: str, stage_log: StageLog) -> None:
     """True versus shuffled actions on held-out clips, measured as ``vp2 diagnose`` measures
-    them (:func:`vp2.benchmark.diagnose.measure_conditioning`, seed 0: the same clips and
+    them (:func:`vp2.diagnose.model.measure_conditioning`, seed 0: the same clips and
     shuffle): ``conditioning/<family>.json``."""
     path = s.out / "conditioning" / f"{family}.json"
     settings = {
@@ -394,7 +394,7 @@ def conditioning_stage(s: Settings, family: str, spec: str, stage_log: StageLog)
         "data": str(s.data),
         "clips": s.conditioning_clips,
         "samples": s.conditioning_samples,
-        "measure": "vp2.benchmark.diagnose.measure_conditioning",
+        "measure": "vp2.diagnose.model.measure_conditioning",
     }
     if done_record(path, settings) is not None:
         stage_log.add("conditioning", family, "done earlier")

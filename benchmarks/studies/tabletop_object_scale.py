@@ -87,12 +87,12 @@ def measure_scale(args) -> None:
 
     scale_objects(args.scale)
     import vp2.envs._tabletop_world as world
-    from vp2.benchmark.trial import ControlTrial
     from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
     from vp2.models.simulator import SimulatorModel
     from vp2.planning.agent import PlanningAgent, frames_to_tensor
     from vp2.planning.config import PlannerConfig
     from vp2.planning.planner import build_cost
+    from vp2.run.trial import ControlTrial
 
     torch.set_num_threads(1)
     out = Path(args.out_jsonl)

@@ -6,7 +6,7 @@ benchmark camera's constants in :mod:`vp2.envs._tabletop_world` (its spec names 
 the constants place it), and :data:`~vp2.envs.rendering.RENDER_PATH_VERSION`. A shipped oracle
 table records the fingerprint of every environment it ran on, and a run is normalised by a
 table only where its environment's fingerprint is this package's
-(:mod:`vp2.benchmark.shipped_oracle`): an oracle that planned on other images measured another
+(:mod:`vp2.oracle.shipped`): an oracle that planned on other images measured another
 benchmark.
 
 Computing it builds no environment: it reads module constants (importing the environment
