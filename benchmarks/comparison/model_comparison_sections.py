@@ -8,8 +8,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from vp2.benchmark.diagnose_score import load_predictor, predicted_score
-from vp2.benchmark.diagnose_verdicts import TOP_FRACTION
+from vp2.diagnose.score import load_predictor, predicted_score
+from vp2.diagnose.verdicts import TOP_FRACTION
 from vp2.report.study import ALL_TASKS, STUDY_METRICS
 
 #: The metrics table's columns: key in ``metrics.json``, title, scale, format.

@@ -30,7 +30,7 @@ from typing import Any
 
 import yaml
 
-from vp2.benchmark.results import read_trials
+from vp2.run.results import read_trials
 from vp2.utils.io import atomic_path, json_safe, write_json_atomic
 
 #: The fields of a trial record that the records keep (``timings`` reduced to ``total_s``).

@@ -40,7 +40,6 @@ import numpy as np
 import torch
 
 from benchmarks import common
-from vp2.benchmark.results import read_trials
 from vp2.classifiers.checkpoint import load_classifier, read_classifier_checkpoint, save_classifier
 from vp2.classifiers.data import (
     FrameSet,
@@ -58,6 +57,7 @@ from vp2.classifiers.train import (
 from vp2.data.suite import TaskSuite
 from vp2.envs.robodesk import DENSE_LABEL_THRESHOLD, OFF_TABLE_BELOW
 from vp2.planning.samplers import CorrelatedNoiseSampler
+from vp2.run.results import read_trials
 from vp2.spec import SIGMA
 from vp2.utils.io import write_json_atomic
 

@@ -41,12 +41,12 @@ import torch
 
 from benchmarks import common
 from benchmarks.studies.classifier_weight_tuning import with_weight
-from vp2.benchmark.results import read_trials
 from vp2.data.suite import TaskSuite
 from vp2.envs.robodesk import OBJECTS, OFF_TABLE_BELOW
 from vp2.envs.tasks import get_task
 from vp2.planning.agent import frames_to_tensor
 from vp2.planning.planner import build_cost
+from vp2.run.results import read_trials
 from vp2.utils.io import write_json_atomic
 
 

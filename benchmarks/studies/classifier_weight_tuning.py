@@ -77,11 +77,11 @@ def ranks_by_weight(task: str, index: int, num_samples: int, weights) -> dict:
 
 
 def run_trial(task: str, index: int, weight: float, num_samples: int) -> dict:
-    from vp2.benchmark.trial import ControlTrial
     from vp2.data.suite import TaskSuite
     from vp2.models.simulator import SimulatorModel
     from vp2.planning.agent import PlanningAgent
     from vp2.planning.config import PlannerConfig
+    from vp2.run.trial import ControlTrial
 
     with_weight(task, weight)
     inst = TaskSuite.load().get(task, index)

@@ -232,13 +232,13 @@ def measure_camera(args) -> dict:
         rank_of_last,
         scripted_plan,
     )
-    from vp2.benchmark.trial import ControlTrial
     from vp2.data.suite import TaskSuite
     from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
     from vp2.models.simulator import SimulatorModel
     from vp2.planning.agent import PlanningAgent, frames_to_tensor
     from vp2.planning.config import PlannerConfig
     from vp2.planning.planner import build_cost
+    from vp2.run.trial import ControlTrial
     from vp2.spec import NUM_FUTURE as HORIZON
 
     pos, lookat = json.loads(args.pose)

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import common
-from vp2.benchmark.results import read_trials
+from vp2.run.results import read_trials
 from vp2.utils.io import write_json_atomic
 
 #: Success threshold of the tabletop (SPEC §1.2), metres.

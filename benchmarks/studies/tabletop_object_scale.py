@@ -88,12 +88,12 @@ def measure_scale(args) -> None:
     from vp2.spec import NUM_FUTURE as HORIZON
 
     scene = scaled_scene(args.scale)
-    from vp2.benchmark.trial import ControlTrial
     from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
     from vp2.models.simulator import SimulatorModel
     from vp2.planning.agent import PlanningAgent, frames_to_tensor
     from vp2.planning.config import PlannerConfig
     from vp2.planning.planner import build_cost
+    from vp2.run.trial import ControlTrial
 
     torch.set_num_threads(1)
     out = Path(args.out_jsonl)

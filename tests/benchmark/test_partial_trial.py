@@ -1,5 +1,5 @@
 """A trial cut off mid-way resumes at the step it reached and ends exactly as the uninterrupted
-trial (vp2.benchmark.partial): by hand through ControlTrial, and through a run whose first
+trial (vp2.run.partial): by hand through ControlTrial, and through a run whose first
 attempt of a trial dies after two steps."""
 
 from __future__ import annotations
@@ -11,20 +11,20 @@ import pytest
 
 from tests.benchmark import tiny_suite_path
 from vp2.benchmark import worker
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.model_spec import resolve_model
-from vp2.benchmark.partial import (
+from vp2.benchmark.runner import run_benchmark
+from vp2.data.suite import TaskSuite
+from vp2.planning import PlannerConfig, PlanningAgent, RandomActions
+from vp2.run.config import RunConfig
+from vp2.run.model_spec import resolve_model
+from vp2.run.partial import (
     PartialMismatch,
     PartialTrial,
     load_partial,
     partial_path,
     save_partial,
 )
-from vp2.benchmark.results import read_trials
-from vp2.benchmark.runner import run_benchmark
-from vp2.benchmark.trial import ControlTrial
-from vp2.data.suite import TaskSuite
-from vp2.planning import PlannerConfig, PlanningAgent, RandomActions
+from vp2.run.results import read_trials
+from vp2.run.trial import ControlTrial
 
 TASK = "tabletop/push_sphere"
 STEPS = 5
@@ -123,7 +123,7 @@ def test_a_run_resumes_a_trial_whose_first_attempt_died_mid_way(tmp_path, monkey
     run_benchmark(config)
     (whole,) = read_trials(tmp_path / "whole")
 
-    monkeypatch.setattr("vp2.benchmark.partial.CHECKPOINT_EVERY_S", 0.0)
+    monkeypatch.setattr("vp2.run.partial.CHECKPOINT_EVERY_S", 0.0)
     real_save, calls = worker.save_partial, []
 
     def dying_save(path, partial):

@@ -8,12 +8,12 @@ from pathlib import Path
 import pytest
 
 from tests.benchmark import TABLETOP_BLIND_SCORE, TABLETOP_PREDICTOR
-from tests.benchmark.test_diagnose import HERE
+from tests.diagnose.test_model import HERE
 from tests.models.synthetic import write_moving_square_dataset
 from vp2 import cli
-from vp2.benchmark.diagnose import DiagnoseConfig
 from vp2.cli import diagnose as diagnose_cmd
 from vp2.cli._fields import build
+from vp2.diagnose.model import DiagnoseConfig
 
 #: The shipped predictor is fitted on RoboDesk models only (vp2/assets/diagnose_predictor.json).
 

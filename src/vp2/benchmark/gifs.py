@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from vp2.benchmark.results import TrialKey
-from vp2.benchmark.run_dir import GIF_DIR
-from vp2.benchmark.trial import TrialResult
+from vp2.run.results import TrialKey
+from vp2.run.run_dir import GIF_DIR
+from vp2.run.trial import TrialResult
 from vp2.utils.io import atomic_path
 
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vp2.benchmark.diagnose import REPORT_FILE, DiagnoseConfig
-from vp2.benchmark.model_spec import parse_model_args
 from vp2.cli._fields import Flag, add_flags, build
 from vp2.cli.metrics import model_slug
+from vp2.diagnose.model import REPORT_FILE, DiagnoseConfig
+from vp2.run.model_spec import parse_model_args
 
 NAME = "diagnose"
 HELP = "whether a model can plan, in minutes: action conditioning, its cost's ranking (docs/diagnose.md)"
@@ -21,7 +21,7 @@ DESCRIPTION = (
     "verdict per measure and writes a JSON report (docs/diagnose.md)."
 )
 
-#: One entry per :class:`~vp2.benchmark.diagnose.DiagnoseConfig` field, and ``--out``.
+#: One entry per :class:`~vp2.diagnose.model.DiagnoseConfig` field, and ``--out``.
 FLAGS: dict[str, Flag | None] = {
     "model": Flag(
         required=True,
@@ -83,7 +83,7 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 def run_from_args(args: argparse.Namespace) -> int:
     """Runs ``vp2 diagnose``: prints a line per measure and writes the report."""
-    from vp2.benchmark.diagnose import (
+    from vp2.diagnose.model import (
         diagnose_env,
         diagnose_model,
         format_report,

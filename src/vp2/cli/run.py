@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 
-from vp2.benchmark.config import AGENTS, RunConfig
-from vp2.benchmark.model_spec import parse_model_args
 from vp2.cli._common import executor_flags
 from vp2.cli._fields import NOT_A_FLAG, Flag, add_flags, build
+from vp2.run.config import AGENTS, RunConfig
+from vp2.run.model_spec import parse_model_args
 
 NAME = "run"
 HELP = "evaluate a model by planning with it on the task suite (docs/evaluation.md)"
@@ -19,7 +19,7 @@ DESCRIPTION = (
 
 RUN_OPTIMIZERS = ["mppi", "cem", "cem_gd", "lbfgs"]
 
-#: One entry per :class:`~vp2.benchmark.config.RunConfig` field (the planner's nested ones as
+#: One entry per :class:`~vp2.run.config.RunConfig` field (the planner's nested ones as
 #: ``planner.*``), in the order of ``vp2 run --help``. Literal choices: listing the
 #: optimizers and cost modes from the planner would import torch.
 FLAGS: dict[str, Flag | None] = {

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vp2.benchmark.ship_oracle import (
+from vp2.oracle.build import (
     RESULTS_DIR,
     asset_text,
     build_asset,
@@ -14,7 +14,7 @@ from vp2.benchmark.ship_oracle import (
     write_oracle_asset,
     write_table,
 )
-from vp2.benchmark.shipped_oracle import (
+from vp2.oracle.shipped import (
     ASSET_FILE,
     default_asset_path,
     load_shipped_oracle,

@@ -53,7 +53,7 @@ class Observation:
 
 @runtime_checkable
 class Agent(Protocol):
-    """What a :class:`vp2.benchmark.trial.ControlTrial` drives.
+    """What a :class:`vp2.run.trial.ControlTrial` drives.
 
     Attributes:
         name: Identity in results (``"planning"``, ``"random_actions"``).
@@ -129,7 +129,7 @@ def _model_device(model: Any) -> torch.device | None:
 class PlanningAgent:
     """Visual-foresight agent: replans with the model and optimizer at every control step.
 
-    Called by :class:`vp2.benchmark.trial.ControlTrial`: :meth:`reset` at the start of a
+    Called by :class:`vp2.run.trial.ControlTrial`: :meth:`reset` at the start of a
     trial, then :meth:`act` at every control step after the first (the trial executes the
     zero action first, so that two context frames exist).
 
@@ -265,7 +265,7 @@ class PlanningAgent:
     def trial_state(self) -> dict[str, Any]:
         """What the agent carries from one control step to the next: the warm-start plan, the
         states of its generators and the optimizer's (for a trial resumed mid-way,
-        :mod:`vp2.benchmark.partial`)."""
+        :mod:`vp2.run.partial`)."""
         return {
             "plan": self.plan.detach().cpu().numpy(),
             "generator": self.generator.get_state().numpy(),

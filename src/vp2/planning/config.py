@@ -1,5 +1,5 @@
 """The planner's settings, :class:`PlannerConfig`: plain data, importable without torch (a run's
-configuration holds one, :class:`vp2.benchmark.config.RunConfig`)."""
+configuration holds one, :class:`vp2.run.config.RunConfig`)."""
 
 from __future__ import annotations
 

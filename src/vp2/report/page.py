@@ -10,7 +10,7 @@ network access. It shows
   highest control-run (seed) rate (the paper's Figure 3), and the same numbers as a table;
 * the oracle-normalised score: by a simulator-oracle run among the inputs, else by the one a
   run names in its ``oracle`` setting, else by the shipped oracle
-  (:mod:`vp2.benchmark.shipped_oracle`), with how that was measured;
+  (:mod:`vp2.oracle.shipped`), with how that was measured;
 * the metrics-versus-control study (:mod:`vp2.report.study`) when ``metrics.json`` files
   are given;
 * a gallery of trial videos per model and task (execution next to the goal image, and the

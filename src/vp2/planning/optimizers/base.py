@@ -195,7 +195,7 @@ class Optimizer(abc.ABC):
 
     def trial_state(self) -> dict[str, Any]:
         """The per-trial state carried between planning steps (JSON-able), for a trial resumed
-        mid-way (:mod:`vp2.benchmark.partial`); stateless optimizers have none."""
+        mid-way (:mod:`vp2.run.partial`); stateless optimizers have none."""
         return {}
 
     def load_trial_state(self, state: dict[str, Any]) -> None:  # noqa: B027 -- stateless default

@@ -1,4 +1,4 @@
-"""The measurements of ``vp2 diagnose`` (:mod:`vp2.benchmark.diagnose`), one function each.
+"""The measurements of ``vp2 diagnose`` (:mod:`vp2.diagnose.model`), one function each.
 
 * :func:`held_out_clips` and :func:`conditioning_errors`: per-clip prediction error under each
   clip's true actions and under another clip's (a derangement), on the valid split of a
@@ -18,7 +18,7 @@
 * :func:`spearman`, :func:`effective_sample_size`, :func:`cross_task_cosine`: the statistics.
 
 Nothing here decides what a number means: the thresholds and verdicts are in
-:mod:`vp2.benchmark.diagnose`.
+:mod:`vp2.diagnose.model`.
 """
 
 from __future__ import annotations
@@ -37,7 +37,6 @@ import torch
 
 import vp2
 from vp2 import spec
-from vp2.benchmark.trial import goal_image_at, trial_seed
 from vp2.data.loader import ClipDataset, select_clips
 from vp2.data.suite import TaskInstance
 from vp2.models.contract import predict_in_chunks
@@ -45,6 +44,7 @@ from vp2.planning.agent import PlanningAgent, frames_to_tensor
 from vp2.planning.config import PlannerConfig
 from vp2.planning.optimizers.mppi import mppi_weights
 from vp2.planning.samplers import broadcast_std
+from vp2.run.trial import goal_image_at, trial_seed
 from vp2.utils.io import atomic_path, cache_dir
 
 log = logging.getLogger(__name__)

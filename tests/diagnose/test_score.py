@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from benchmarks.studies import diagnose_validation as dv
 
-from vp2.benchmark.diagnose_score import (
+from vp2.diagnose.score import (
     FEATURES,
     NO_PREDICTOR,
     RIDGE,
@@ -231,7 +231,7 @@ def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path)
 
 
 def test_a_wide_interval_around_1_is_inconclusive_not_blind():
-    from vp2.benchmark.diagnose_verdicts import conditioning_verdict
+    from vp2.diagnose.verdicts import conditioning_verdict
 
     # The pre-check of a model that does use its actions, on 16 clips (64 clips: 1.13 [1.04, 1.23]).
     wide = conditioning_verdict({"ratio": 1.07, "ci": [0.84, 1.39], "clips": 16})
@@ -244,7 +244,7 @@ def test_a_wide_interval_around_1_is_inconclusive_not_blind():
 def test_the_shipped_predictor_orders_a_planning_model_above_a_blind_one():
     # vp2/assets/diagnose_predictor.json, fitted on 12 RoboDesk models' control runs by
     # benchmarks.studies.diagnose_validation (docs/findings/diagnose-validation.md).
-    from vp2.benchmark.diagnose_score import load_predictor
+    from vp2.diagnose.score import load_predictor
 
     asset = load_predictor()
     predictor = asset["predictors"]["robodesk"]
@@ -276,7 +276,7 @@ def test_the_shipped_predictor_rebuilds_from_its_committed_evidence(tmp_path, mo
     import shutil
     from pathlib import Path
 
-    from vp2.benchmark.diagnose_score import load_predictor
+    from vp2.diagnose.score import load_predictor
 
     root = Path(__file__).resolve().parents[2]
     shutil.copytree(root / "results" / "diagnose" / "reports", tmp_path / "out" / "reports")

@@ -1,4 +1,4 @@
-"""`vp2.benchmark.diagnose`: its statistics, its verdicts on models that use and ignore their
+"""`vp2.diagnose.model`: its statistics, its verdicts on models that use and ignore their
 actions, its report, and the pre-check of `run_benchmark`.
 
 The held-out clips are moving squares (``tests.models.synthetic``: a square moves by
@@ -22,15 +22,8 @@ import torch
 from tests.benchmark import TABLETOP_BLIND_SCORE, TABLETOP_PREDICTOR, tiny_suite_path
 from tests.models.synthetic import write_moving_square_dataset
 from vp2.benchmark import RunConfig, run_benchmark
-from vp2.benchmark.diagnose import (
-    DiagnoseConfig,
-    checkpoint_env,
-    diagnose_model,
-    format_report,
-    precheck_model,
-    write_report,
-)
-from vp2.benchmark.diagnose_measures import (
+from vp2.data.suite import TaskSuite
+from vp2.diagnose.measures import (
     effective_sample_size,
     rank_of_last,
     ratio_statistics,
@@ -40,11 +33,18 @@ from vp2.benchmark.diagnose_measures import (
     step_context,
     trajectory_interval,
 )
-from vp2.data.suite import TaskSuite
+from vp2.diagnose.model import (
+    DiagnoseConfig,
+    checkpoint_env,
+    diagnose_model,
+    format_report,
+    precheck_model,
+    write_report,
+)
 from vp2.planning.config import PlannerConfig
 from vp2.utils.io import json_safe
 
-HERE = "tests.benchmark.test_diagnose"
+HERE = "tests.diagnose.test_model"
 #: Pixels a square moves per unit of action (the dataset's speed: size / 8).
 SPEED = 8
 
@@ -386,7 +386,7 @@ def test_agreement_of_the_same_the_reversed_and_a_constant_ranking():
 
 
 def test_the_simulators_scores_are_cached_by_instance_seed_and_batch(tmp_path):
-    from vp2.benchmark.model_spec import resolve_model
+    from vp2.run.model_spec import resolve_model
 
     (instance,) = TaskSuite.load(tiny_suite_path()).instances[:1]
     simulator = resolve_model("simulator", {}, env="tabletop", action_dim=4, device="cpu")
@@ -411,7 +411,7 @@ def test_the_simulators_scores_are_cached_by_instance_seed_and_batch(tmp_path):
 
 def test_the_default_probes_read_the_shipped_simulator_scores(tmp_path, monkeypatch):
     # vp2/assets/diagnose_oracle: a first diagnosis on a machine does not pay for the simulator.
-    from vp2.benchmark.diagnose_measures import SHIPPED_ORACLE_SCORES
+    from vp2.diagnose.measures import SHIPPED_ORACLE_SCORES
 
     monkeypatch.setenv("VP2_CACHE_DIR", str(tmp_path))
     report = diagnose_model(DiagnoseConfig(model="repeat_last_frame", env="robodesk", clips=0,
@@ -441,7 +441,7 @@ def test_a_step_context_along_the_scripted_path():
 
 
 def test_a_stopped_diagnosis_goes_on_from_its_partial_file(data, suite, tmp_path, monkeypatch, caplog):
-    from vp2.benchmark import diagnose as diagnose_module
+    from vp2.diagnose import model as diagnose_module
 
     model = f"{HERE}:NoisyModel"  # sampling noise: the resumed parts must draw the same
     whole = _diagnose(model, data, suite, clips=4, sampling_seeds=1)

@@ -15,11 +15,11 @@ import yaml
 
 from tests.benchmark import tiny_suite_path
 from vp2 import spec
-from vp2.benchmark.config import PROTOCOL_FIELDS, RunConfig, flat_settings, planner_of
-from vp2.benchmark.results import summarize
-from vp2.benchmark.run_dir import RunDir, read_config
 from vp2.benchmark.runner import run_benchmark
 from vp2.planning.planner import PlannerConfig
+from vp2.run.config import PROTOCOL_FIELDS, RunConfig, flat_settings, planner_of
+from vp2.run.results import summarize
+from vp2.run.run_dir import RunDir, read_config
 
 TASK = "tabletop/push_sphere"
 
@@ -127,7 +127,7 @@ def test_reading_a_config_does_not_load_torch(tmp_path):
 
     RunDir.prepare(_config(tmp_path))
     code = (
-        "import sys; from vp2.benchmark.run_dir import RunDir; "
+        "import sys; from vp2.run.run_dir import RunDir; "
         f"run = RunDir({str(tmp_path / 'run')!r}); "
         "assert run.settings()['num_samples'] == 8 and run.deviations(); "
         "assert run.config().planner.num_samples == 8; print('torch' in sys.modules)"

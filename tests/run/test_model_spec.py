@@ -14,7 +14,14 @@ import pytest
 import torch
 
 from tests.models.test_zoo import shipped_zoo_names
-from vp2.benchmark.model_spec import (
+from vp2.models import CheckpointSpec, build_model, model_entry, write_model_checkpoint
+from vp2.models.baselines import RepeatLastFrame
+from vp2.models.contract import CheckedPredictor, unwrap
+from vp2.models.simulator import SimulatorModel
+from vp2.models.zoo import CHECKPOINT_FILE, get_card
+from vp2.models.zoo import ZOO_PREFIX as ZOO_PREFIX_OF_THE_ZOO
+from vp2.models.zoo_entries import add_to_zoo
+from vp2.run.model_spec import (
     ZOO_PREFIX,
     ModelSpec,
     PluginError,
@@ -25,13 +32,6 @@ from vp2.benchmark.model_spec import (
     model_identity,
     resolve_model,
 )
-from vp2.models import CheckpointSpec, build_model, model_entry, write_model_checkpoint
-from vp2.models.baselines import RepeatLastFrame
-from vp2.models.contract import CheckedPredictor, unwrap
-from vp2.models.simulator import SimulatorModel
-from vp2.models.zoo import CHECKPOINT_FILE, get_card
-from vp2.models.zoo import ZOO_PREFIX as ZOO_PREFIX_OF_THE_ZOO
-from vp2.models.zoo_entries import add_to_zoo
 
 
 def test_module_factory_with_args_and_context():

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from tests.benchmark import tiny_suite_path
-from vp2.benchmark.trial import ControlTrial, trial_seed
 from vp2.classifiers.registry import ClassifierRegistry
 from vp2.data.suite import TaskSuite
 from vp2.models.baselines import RepeatLastFrame
 from vp2.planning import PlannerConfig, PlanningAgent, RandomActions
+from vp2.run.trial import ControlTrial, trial_seed
 
 STEPS = 3
 

@@ -65,11 +65,11 @@ class RunConfig:
     Attributes:
         model: Model spec (``--model``): ``simulator``, ``repeat_last_frame``,
             ``NAME:CHECKPOINT``, ``package.module:factory`` or a YAML file
-            (:mod:`vp2.benchmark.model_spec`). Ignored by ``agent="random"``.
+            (:mod:`vp2.run.model_spec`). Ignored by ``agent="random"``.
         out: Run directory (``--out``).
         model_args: Keyword arguments of the model factory (``--model-arg KEY=VALUE``,
             repeatable; values parsed as YAML, see
-            :func:`~vp2.benchmark.model_spec.parse_model_args`).
+            :func:`~vp2.run.model_spec.parse_model_args`).
         agent: ``"planning"`` (visual foresight with the model) or ``"random"`` (uniform
             random actions, no model) (``--agent``).
         suite: Task suite file (``--suite``); ``None``: the suite shipped with vp2.
@@ -120,12 +120,12 @@ class RunConfig:
             (``--save-predictions``; one extra model call per step).
         oracle: Run directory (or ``trials.jsonl``) of a simulator-oracle run, to normalise
             the scores (``--oracle``); ``None``: the shipped oracle's table of the run's planner samples
-            (:mod:`vp2.benchmark.shipped_oracle`), if there is one.
+            (:mod:`vp2.oracle.shipped`), if there is one.
         progress: Show a progress bar with ETA (``--no-progress`` off).
         precheck: Before the first trial of a learned model, measure on a few held-out clips
             of the environment's default dataset whether its predictions depend on the
             actions, and warn when they do not (``--no-precheck`` off;
-            :func:`vp2.benchmark.diagnose.precheck_model`). Not a protocol field.
+            :func:`vp2.diagnose.model.precheck_model`). Not a protocol field.
     """
 
     model: str

@@ -1,4 +1,4 @@
-"""The verdicts of ``vp2 diagnose`` (:mod:`vp2.benchmark.diagnose`): the planning measures
+"""The verdicts of ``vp2 diagnose`` (:mod:`vp2.diagnose.model`): the planning measures
 summarised over instances, one ``{"status", "text"}`` per measure from fixed thresholds (the
 constants below, listed in ``docs/diagnose.md``), and the printed lines.
 
@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from vp2 import spec
-from vp2.benchmark.diagnose_measures import AGREEMENT_TOP_FRACTION, cross_task_cosine
+from vp2.diagnose.measures import AGREEMENT_TOP_FRACTION, cross_task_cosine
 
 #: A conditioning ratio whose 95% interval holds 1 and stays below WEAK_RATIO: "does not
 #: depend on the actions"; one that holds 1 and reaches WEAK_RATIO: "inconclusive" (too few

@@ -8,10 +8,10 @@ Two steps, each deterministic:
    fingerprints, classifiers, the commands that ran the trials) and ``trials.jsonl`` (one
    compact record per trial, sorted by task, instance and seed: :func:`compact_record`).
 2. :func:`build_asset` reads every table folder under ``results/oracle`` and computes the
-   asset (:mod:`vp2.benchmark.shipped_oracle` describes its format) from those files alone:
+   asset (:mod:`vp2.oracle.shipped` describes its format) from those files alone:
    the same files give the same bytes (:func:`asset_text`), on any machine, on any day.
 
-The replay of a record against the simulator: :mod:`vp2.benchmark.oracle_replay`.
+The replay of a record against the simulator: :mod:`vp2.oracle.replay`.
 """
 
 from __future__ import annotations
@@ -25,16 +25,16 @@ from pathlib import Path
 from typing import Any
 
 from vp2 import spec
-from vp2.benchmark.config import planner_of
-from vp2.benchmark.results import is_ok, read_trials, task_success, trial_key
-from vp2.benchmark.run_dir import RunDir
-from vp2.benchmark.shipped_oracle import (
+from vp2.oracle.shipped import (
     ASSET_FORMAT,
     SETTINGS,
     PathLike,
     default_asset_path,
     is_oracle_config,
 )
+from vp2.run.config import planner_of
+from vp2.run.results import is_ok, read_trials, task_success, trial_key
+from vp2.run.run_dir import RunDir
 from vp2.utils.io import atomic_path, write_json_atomic
 
 #: Where the tables' evidence lives, relative to the repository root.
@@ -67,7 +67,7 @@ def _classifier_of(task: str, records: Iterable[dict[str, Any]]) -> dict[str, An
     its weight in the cost; ``{}`` where none was recorded. Trials that used different
     classifiers or weights are refused. Records written before the weight was recorded
     (``weight`` absent) planned at the SPEC's weight, the only one ``vp2 run`` used then, and
-    count as that weight (as the matcher reads them, :mod:`vp2.benchmark.oracle_tables`)."""
+    count as that weight (as the matcher reads them, :mod:`vp2.oracle.tables`)."""
     provenances = [
         dict(r["agent"]["classifier"])
         for r in records

@@ -5,7 +5,7 @@ same tasks, measured at the run's own planner sample count and on the same image
 the oracle takes hours, so its rates ship with the package as ``vp2/assets/oracle.json``: a
 set of *tables*, one per planner budget (e.g. ``samples-50``, the main job's count, and
 ``spec``, the SPEC's 200/800). ``vp2 ship-oracle`` builds the file from the trial records
-committed under ``results/oracle`` (:mod:`vp2.benchmark.ship_oracle`); ``vp2 run``, ``vp2
+committed under ``results/oracle`` (:mod:`vp2.oracle.build`); ``vp2 run``, ``vp2
 main`` and ``vp2 report`` normalise by it unless an oracle run is given (``--oracle RUN_DIR``).
 The environment variable ``VP2_ORACLE_ASSET`` points the readers at another file (tests; a
 file that does not exist means "no shipped oracle").
@@ -51,14 +51,14 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from vp2.benchmark.oracle_tables import (
+from vp2.oracle.tables import (
     OracleMatch,
     OracleTable,
     OracleTask,
     match_tables,
     samples_text,
 )
-from vp2.benchmark.results import Summary, read_trials, summarize
+from vp2.run.results import Summary, read_trials, summarize
 
 PathLike = str | os.PathLike[str]
 
@@ -123,7 +123,7 @@ class ShippedOracle:
                 SPEC's), which gives the planner samples of each task.
 
         Returns:
-            The :class:`~vp2.benchmark.oracle_tables.OracleMatch`.
+            The :class:`~vp2.oracle.tables.OracleMatch`.
         """
         return match_tables(self.tables, records, planner)
 

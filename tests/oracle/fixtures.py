@@ -13,9 +13,9 @@ from pathlib import Path
 import yaml
 
 from tests.benchmark import tiny_suite_path
-from vp2.benchmark.oracle_tables import OracleTable, OracleTask
 from vp2.data.suite import SUITE_FORMAT, TaskSuite
 from vp2.envs.render_specs import render_fingerprints
+from vp2.oracle.tables import OracleTable, OracleTask
 
 TASK = "tabletop/push_sphere"
 #: (instance, seed) -> success: per seed 1.0, 0.5, 0.5, so the rate is 2/3 (4 of 6).

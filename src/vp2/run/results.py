@@ -11,7 +11,7 @@ success nor as a failure; they are reported separately. The overall score is the
 task categories; normalised by the simulator oracle's overall score on the same tasks
 (ratio of the means, so a task on which the oracle rarely succeeds does not blow up the
 score). The oracle's per-task rates come from an oracle run's records or from the shipped
-oracle's table of the run's planner budget (:mod:`vp2.benchmark.shipped_oracle`), both as
+oracle's table of the run's planner budget (:mod:`vp2.oracle.shipped`), both as
 :class:`TaskSummary` rows.
 """
 
@@ -272,7 +272,7 @@ def summarize(
         records: Trial records of the run.
         oracle_records: Trial records of a simulator-oracle run on (at least) the same tasks.
         oracle: Or the oracle's per-task rows directly (e.g. the shipped oracle's,
-            :meth:`vp2.benchmark.shipped_oracle.ShippedOracle.match`).
+            :meth:`vp2.oracle.shipped.ShippedOracle.match`).
         oracle_source: What the oracle is, one line (shown with the normalised score).
         explained: Tasks the caller left out of ``oracle`` and explains in its own notes: the
             note on tasks without oracle results does not name them again.

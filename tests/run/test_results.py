@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from vp2.benchmark.results import (
+from vp2.run.results import (
     TrialLog,
     format_summary,
     read_trials,
@@ -134,7 +134,7 @@ def test_summary_of_nothing_is_nan_not_an_error():
 
 
 def test_tasks_come_in_suite_order_not_finish_order():
-    from vp2.benchmark.results import task_success
+    from vp2.run.results import task_success
 
     def rec(task, seed=0):
         return {"task": task, "instance": 0, "seed": seed, "success": True, "error": None}

@@ -1,6 +1,6 @@
 """A diagnosis's partial file: the measurements ``vp2 diagnose`` has finished, kept as they
 finish and reused by a re-run of the same settings and model (the ``partial`` argument of
-:func:`vp2.benchmark.diagnose.diagnose_model`)."""
+:func:`vp2.diagnose.model.diagnose_model`)."""
 
 from __future__ import annotations
 

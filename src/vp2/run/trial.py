@@ -22,15 +22,15 @@ from typing import Any
 
 import numpy as np
 
-from vp2.benchmark import partial as partial_module
-from vp2.benchmark.partial import (
+from vp2.data.suite import TaskInstance
+from vp2.envs.base import Env
+from vp2.planning.agent import Agent, Observation, check_agent_for_env
+from vp2.run import partial as partial_module
+from vp2.run.partial import (
     PartialMismatch,
     PartialTrial,
     check_resumable,
 )
-from vp2.data.suite import TaskInstance
-from vp2.envs.base import Env
-from vp2.planning.agent import Agent, Observation, check_agent_for_env
 from vp2.spec import NUM_CONTROL_STEPS
 
 
@@ -187,19 +187,19 @@ class ControlTrial:
             outcome is the same; the remaining steps and their frames are skipped.
         env: An environment built from ``instance.env_meta`` to reuse (it is reset to the
             instance's initial state); ``None`` builds one and closes it afterwards.
-        checkpoint: Called with the trial so far (a :class:`~vp2.benchmark.partial.
+        checkpoint: Called with the trial so far (a :class:`~vp2.run.partial.
             PartialTrial`) after a control step, when ``checkpoint_every_s`` seconds of the
             trial have passed since the last call; ``None``: never. Only agents with a
             ``trial_state`` method are checkpointed.
         resume: A partial trial of this trial to go on from: its actions are stepped again
             (their success flags must come out the same), the agent gets its state back, and
             planning goes on from the next step. Raises
-            :class:`~vp2.benchmark.partial.PartialMismatch` when it was made with other
+            :class:`~vp2.run.partial.PartialMismatch` when it was made with other
             settings (``meta``) or does not replay.
         meta: What identifies this trial's settings beyond the trial's own (the model, the
             software), stored in checkpoints and compared with ``resume``'s.
         checkpoint_every_s: See ``checkpoint`` (``None``:
-            :data:`~vp2.benchmark.partial.CHECKPOINT_EVERY_S`).
+            :data:`~vp2.run.partial.CHECKPOINT_EVERY_S`).
     """
 
     def __init__(

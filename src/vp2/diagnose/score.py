@@ -1,6 +1,6 @@
 """The predicted control score: `vp2 diagnose`'s measurements mapped to a success rate.
 
-A diagnose report (:mod:`vp2.benchmark.diagnose`) holds cheap measurements of a model. This
+A diagnose report (:mod:`vp2.diagnose.model`) holds cheap measurements of a model. This
 module turns them into **features** (:func:`features`), fits a **predictor** of a model's control
 success from models whose control runs were measured (:func:`fit`: an L2-regularised logistic
 regression of the success fraction on the standardised features, weighted by the trials behind

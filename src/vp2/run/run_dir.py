@@ -5,13 +5,13 @@ summaries, and the checks of a resume.
 
     RUN_DIR/
       config.yaml      the resolved RunConfig, vp2 version, departures from the SPEC protocol
-      trials.jsonl     one record per finished trial (vp2.benchmark.results)
+      trials.jsonl     one record per finished trial (vp2.run.results)
       summary.md       the summary table (and summary.json)
       gifs/TASK/       one GIF per trial (vp2.benchmark.gifs)
 
 Only the driver process of a run writes here (:meth:`RunDir.prepare`, :meth:`RunDir.trial_log`,
 :meth:`RunDir.write_summary`); the report, the study and ``vp2 ship-oracle`` read. A resumed run
-must keep the protocol settings (:data:`~vp2.benchmark.config.PROTOCOL_FIELDS`) and the task
+must keep the protocol settings (:data:`~vp2.run.config.PROTOCOL_FIELDS`) and the task
 instances its finished trials ran on. Every score of a run counts only the trials its
 ``config.yaml`` covers (:meth:`RunDir.split_trials`).
 """
@@ -29,8 +29,9 @@ from typing import Any
 import yaml
 
 import vp2
-from vp2.benchmark.config import RunConfig, flat_settings
-from vp2.benchmark.results import (
+from vp2.data.suite import TaskInstance, TaskSuite
+from vp2.run.config import RunConfig, flat_settings
+from vp2.run.results import (
     TRIALS_FILE,
     Summary,
     TrialKey,
@@ -41,7 +42,6 @@ from vp2.benchmark.results import (
     trial_key,
     trial_keys,
 )
-from vp2.data.suite import TaskInstance, TaskSuite
 from vp2.utils.io import atomic_path, json_safe, remove_stale_temporaries, write_json_atomic
 
 log = logging.getLogger(__name__)
@@ -139,7 +139,7 @@ class RunDir:
     # ---- trial records --------------------------------------------------------------------
 
     def trials(self, repair: bool = False) -> Records:
-        """Every record in ``trials.jsonl`` (:func:`~vp2.benchmark.results.read_trials`)."""
+        """Every record in ``trials.jsonl`` (:func:`~vp2.run.results.read_trials`)."""
         return read_trials(self.trials_file, repair=repair)
 
     def trial_log(self) -> TrialLog:

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.oracle_replay import replay_record
 from vp2.benchmark.runner import run_benchmark
-from vp2.benchmark.ship_oracle import build_table, read_table, write_table
-from vp2.benchmark.shipped_oracle import ENV_VAR
 from vp2.envs import TABLETOP_TASKS
+from vp2.oracle.build import build_table, read_table, write_table
+from vp2.oracle.replay import replay_record
+from vp2.oracle.shipped import ENV_VAR
 from vp2.planning.config import PlannerConfig
+from vp2.run.config import RunConfig
 
 RESULTS = Path(__file__).resolve().parents[2] / "results" / "oracle"
 #: Planner samples up to which a RoboDesk replay's planning step takes under a minute here

@@ -1,7 +1,7 @@
 """Replaying an oracle trial record: the first control steps again, against what was recorded.
 
 A shipped oracle table is only as good as the trials behind it (``results/oracle/*/
-trials.jsonl``, :mod:`vp2.benchmark.ship_oracle`). :func:`replay_record` rebuilds a record's
+trials.jsonl``, :mod:`vp2.oracle.build`). :func:`replay_record` rebuilds a record's
 instance from the task suite (checking its fingerprint), plans with the simulator oracle as a
 benchmark worker does (the same :class:`~vp2.planning.agent.PlanningAgent`, planner settings
 and trial seed) for the first control steps, and returns the executed actions next to the
@@ -77,7 +77,7 @@ def replay_record(
     """Runs the first ``steps`` control steps of an oracle trial again.
 
     Args:
-        record: A compact trial record (:func:`~vp2.benchmark.ship_oracle.compact_record`:
+        record: A compact trial record (:func:`~vp2.oracle.build.compact_record`:
             task, instance, seed, instance_sha, num_samples, actions, classifier) or a run's
             full record with ``num_samples`` added.
         steps: Control steps to replay (at least 2: the zero action, then planning).
@@ -92,12 +92,12 @@ def replay_record(
         ValueError: the suite's instance is not the record's (another suite version), or the
             record has fewer than ``steps`` actions.
     """
-    from vp2.benchmark.config import planner_of
-    from vp2.benchmark.model_spec import resolve_model
-    from vp2.benchmark.trial import ControlTrial
     from vp2.data.suite import TaskSuite
     from vp2.envs import env_class, split_name
     from vp2.planning.agent import PlanningAgent
+    from vp2.run.config import planner_of
+    from vp2.run.model_spec import resolve_model
+    from vp2.run.trial import ControlTrial
 
     settings = dict(settings or {})
     task, index, seed = record["task"], int(record["instance"]), int(record["seed"])

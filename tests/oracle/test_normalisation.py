@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from tests.benchmark import tiny_suite_path
-from tests.benchmark.oracle_fixtures import (
+from tests.oracle.fixtures import (
     OUTCOMES,
     TASK,
     model_records,
@@ -20,19 +20,19 @@ from tests.benchmark.oracle_fixtures import (
 )
 from vp2 import cli
 from vp2.benchmark.main_job import MainJobConfig, run_main_job
-from vp2.benchmark.results import format_summary, summarize
-from vp2.benchmark.ship_oracle import build_asset, build_table, write_oracle_asset, write_table
-from vp2.benchmark.shipped_oracle import (
+from vp2.envs import tabletop_scene
+from vp2.envs.render_specs import render_fingerprint
+from vp2.oracle.build import build_asset, build_table, write_oracle_asset, write_table
+from vp2.oracle.shipped import (
     ENV_VAR,
     NO_SHIPPED_ORACLE,
     ShippedOracle,
     load_shipped_oracle,
     summarize_run,
 )
-from vp2.envs import tabletop_scene
-from vp2.envs.render_specs import render_fingerprint
 from vp2.planning.config import PlannerConfig
 from vp2.report.page import write_report
+from vp2.run.results import format_summary, summarize
 
 ROBODESK = "robodesk/push_red"
 NO_TABLE_AT_5 = (

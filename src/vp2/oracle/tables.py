@@ -1,7 +1,7 @@
 """The shipped oracle's tables, and which table normalises each task of a run.
 
 A table (:class:`OracleTable`) is the simulator oracle measured at one planner budget; the
-asset that holds them and how summaries use them: :mod:`vp2.benchmark.shipped_oracle`.
+asset that holds them and how summaries use them: :mod:`vp2.oracle.shipped`.
 :func:`match_tables` picks, for every task of a run, the table measured at the run's planner
 samples on that task, with this package's render fingerprint of the task's environment, this
 vp2's task suite format and the run's instances; the tasks it cannot match get one note per
@@ -16,7 +16,7 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from vp2 import spec
-from vp2.benchmark.results import TaskSummary
+from vp2.run.results import TaskSummary
 
 
 def samples_text(counts: Iterable[int | None]) -> str:
@@ -106,7 +106,7 @@ class OracleMatch:
 
     Attributes:
         tasks: The oracle's row of each matched task (what
-            :func:`~vp2.benchmark.results.summarize` normalises by).
+            :func:`~vp2.run.results.summarize` normalises by).
         tables: The table of each matched task.
         notes: One line per reason why tasks have no table.
         unmatched: The tasks without a table (each named or implied by a note).

@@ -1,5 +1,5 @@
 """The shipped oracle's tables: from oracle runs to ``results/oracle`` to the asset, byte for
-byte; refusals; loading. How runs are normalised by it: test_oracle_normalisation.py."""
+byte; refusals; loading. How runs are normalised by it: test_normalisation.py."""
 
 from __future__ import annotations
 
@@ -11,9 +11,11 @@ from pathlib import Path
 import pytest
 
 from tests.benchmark import tiny_suite_path
-from tests.benchmark.oracle_fixtures import OUTCOMES, TASK, actions, sha, write_oracle_run
+from tests.oracle.fixtures import OUTCOMES, TASK, actions, sha, write_oracle_run
 from vp2 import cli
-from vp2.benchmark.ship_oracle import (
+from vp2.data.suite import SUITE_FORMAT, TaskSuite
+from vp2.envs.render_specs import render_fingerprint
+from vp2.oracle.build import (
     asset_text,
     build_asset,
     build_oracle_asset,
@@ -23,14 +25,12 @@ from vp2.benchmark.ship_oracle import (
     write_oracle_asset,
     write_table,
 )
-from vp2.benchmark.shipped_oracle import (
+from vp2.oracle.shipped import (
     ASSET_FORMAT,
     ENV_VAR,
     default_asset_path,
     load_shipped_oracle,
 )
-from vp2.data.suite import SUITE_FORMAT, TaskSuite
-from vp2.envs.render_specs import render_fingerprint
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -306,11 +306,11 @@ def test_the_shipped_table_normalises_a_run_of_the_shipped_classifiers(monkeypat
     """A 50-sample run of every category, planned as `vp2 run` plans today (the shipped
     classifier files at each task's weight), is normalised on every task by the packaged
     `samples-50` table: a classifier or weight change that leaves the table stale fails here."""
-    from vp2.benchmark.shipped_oracle import summarize_run
     from vp2.classifiers.checkpoint import file_sha256
     from vp2.classifiers.registry import shipped_path
     from vp2.envs import TASK_NAMES
     from vp2.envs.tasks import get_task
+    from vp2.oracle.shipped import summarize_run
     from vp2.planning.config import PlannerConfig
 
     monkeypatch.delenv(ENV_VAR, raising=False)

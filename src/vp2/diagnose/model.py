@@ -10,8 +10,8 @@ Python API (the command calls exactly this)::
     report = diagnose_model(DiagnoseConfig(model="repeat_last_frame", env="tabletop"))
     write_report("runs/diagnose/rlf/diagnose.json", report)
 
-Four measurements (:mod:`vp2.benchmark.diagnose_measures`), each with a verdict from fixed
-thresholds (:mod:`vp2.benchmark.diagnose_verdicts`; ``docs/diagnose.md``):
+Four measurements (:mod:`vp2.diagnose.measures`), each with a verdict from fixed
+thresholds (:mod:`vp2.diagnose.verdicts`; ``docs/diagnose.md``):
 
 1. **action conditioning** on held-out clips of the environment's default dataset (the one
    ``vp2 collect ENV`` writes, as ``vp2 metrics`` reads it): mean error with the clips' true
@@ -30,7 +30,7 @@ thresholds (:mod:`vp2.benchmark.diagnose_verdicts`; ``docs/diagnose.md``):
    best candidate is in the model's top tenth (the simulator's scores are cached on disk).
 
 The report's ``predicted_control_score`` is the success fraction the shipped predictor
-(:mod:`vp2.benchmark.diagnose_score`, fitted on models whose control runs were measured)
+(:mod:`vp2.diagnose.score`, fitted on models whose control runs were measured)
 gives these measurements, with ``predicted_control_score_reason`` saying what it rests on;
 ``None``, and why, where no predictor is fitted for the environment.
 
@@ -56,8 +56,9 @@ from pathlib import Path
 from typing import Any
 
 from vp2 import spec
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.diagnose_measures import (
+from vp2.data.datasets import default_dataset
+from vp2.data.storage import MANIFEST
+from vp2.diagnose.measures import (
     conditioning_errors,
     held_out_clips,
     held_out_trajectories,
@@ -65,18 +66,17 @@ from vp2.benchmark.diagnose_measures import (
     probe_instance,
     ratio_statistics,
 )
-from vp2.benchmark.diagnose_partial import PartialDiagnosis, partial_key
-from vp2.benchmark.diagnose_score import load_predictor, predicted_score
-from vp2.benchmark.diagnose_verdicts import (
+from vp2.diagnose.partial import PartialDiagnosis, partial_key
+from vp2.diagnose.score import load_predictor, predicted_score
+from vp2.diagnose.verdicts import (
     conditioning_verdict,
     format_report,
     summarize_planning,
     verdicts,
 )
-from vp2.benchmark.model_spec import BUILTIN_MODELS, ModelSpec, model_identity, resolve_model
-from vp2.data.datasets import default_dataset
-from vp2.data.storage import MANIFEST
 from vp2.envs import ENV_TASKS, env_class
+from vp2.run.config import RunConfig
+from vp2.run.model_spec import BUILTIN_MODELS, ModelSpec, model_identity, resolve_model
 from vp2.utils.seeds import check_seed
 
 log = logging.getLogger(__name__)
@@ -232,7 +232,7 @@ def measure_conditioning(
     on_call: Any = None,
 ) -> dict[str, Any]:
     """The action-conditioning measure of a built, checked model on ``data``'s held-out clips:
-    :func:`~vp2.benchmark.diagnose_measures.ratio_statistics` of all pixels (intervals over
+    :func:`~vp2.diagnose.measures.ratio_statistics` of all pixels (intervals over
     clips and over the clips' trajectories), with the changing pixels' under ``moving``."""
     frames, actions = held_out_clips(
         data, clips, seed, int(model.num_context), int(model.num_future)

@@ -1,0 +1,54 @@
+"""What a benchmark run is made of: its settings, its model, one trial, its directory, its records.
+
+==================  ==========================================================================
+config.py           RunConfig: one field per ``vp2 run`` flag, the planner's nested
+                    (PlannerConfig); importing it does not load torch
+model_spec.py       the model to benchmark from ``package.module:factory``, a YAML file or a
+                    checkpoint (resolve_model), and ``--model-arg`` (parse_model_args)
+trial.py            ControlTrial: one agent on one task instance for 15 steps
+partial.py          a trial's progress on disk, so that a cut-off trial resumes at its step
+run_dir.py          RunDir, a run directory: config.yaml, trials.jsonl, summaries, the
+                    trials its config covers, the checks of a resume
+results.py          reading records, success rates over seeds, normalising by oracle rows
+==================  ==========================================================================
+
+This room knows nothing of the shipped oracle (:mod:`vp2.oracle`), the diagnosis
+(:mod:`vp2.diagnose`) or the runner loop (:mod:`vp2.benchmark`), which all build on it. The
+names below are imported on first use, so importing one module of the package does not load
+the others (or torch).
+
+See ``docs/evaluation.md``.
+"""
+
+import importlib
+from typing import Any
+
+#: Where the names of the package live (imported on first use).
+_LAZY_MODULES: dict[str, list[str]] = {
+    "vp2.run.config": ["RunConfig"],
+    "vp2.run.model_spec": [
+        "ModelSpec", "PluginError", "check_spec", "load_plugin", "model_identity",
+        "parse_model_args", "resolve_model",
+    ],
+    "vp2.run.partial": ["PartialTrial", "partial_path"],
+    "vp2.run.results": [
+        "Summary", "TaskSummary", "TrialLog", "format_summary", "read_trials", "summarize",
+        "task_success",
+    ],
+    "vp2.run.run_dir": ["RunDir", "read_config"],
+    "vp2.run.trial": ["ControlTrial", "TrialResult", "trial_seed"],
+}
+_LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(_LAZY[name]), name)
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_LAZY])
+
+
+__all__ = sorted(_LAZY)
