@@ -15,6 +15,7 @@ from vp2.data.storage import load_manifest
 from vp2.diagnose.model import DiagnoseConfig, diagnose_model, measure_conditioning
 from vp2.envs import env_class
 from vp2.run.model_spec import resolve_model
+from vp2.run.run_dir import diagnosis_partial_path
 from vp2.utils.io import json_safe, write_json_atomic
 
 
@@ -68,7 +69,7 @@ def diagnose_stage(s: Settings, name: str, spec: str, stage_log: StageLog) -> Pa
     if done_record(path, settings) is not None:
         stage_log.add("diagnose", name, "done earlier")
         return path
-    partial = path.with_name(f"{path.stem}.partial.json")  # a stopped diagnosis goes on from it
+    partial = diagnosis_partial_path(path)  # a stopped diagnosis goes on from it
     report = diagnose_model(config, partial=partial)
     write_json_atomic(path, json_safe({"settings": settings, "report": report}))
     partial.unlink(missing_ok=True)

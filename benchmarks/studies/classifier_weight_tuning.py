@@ -31,6 +31,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks import common  # noqa: E402
+from vp2.run.run_dir import RunDir  # noqa: E402
 from vp2.utils.io import write_json_atomic  # noqa: E402
 
 GRID = (1.0, 10.0, 100.0, 1000.0, 10000.0)
@@ -138,7 +139,7 @@ def main() -> None:
         for row in ranks:
             print(json.dumps(row), flush=True)
         write_json_atomic(args.out / "ranks.json", {"command": str(vars(args)), "rows": ranks})
-    trials_file = args.out / "trials.jsonl"
+    trials_file = RunDir(args.out).trials_file
     done = set()
     if trials_file.exists():
         for line in trials_file.read_text().splitlines():

@@ -51,7 +51,7 @@ from vp2.diagnose.measures import (
 )
 from vp2.envs import env_class
 from vp2.run.model_spec import resolve_model
-from vp2.run.results import read_trials
+from vp2.run.run_dir import read_trials
 from vp2.utils.io import write_json_atomic
 
 #: The points of an instance's scripted path that are probed: after none, and after half, of

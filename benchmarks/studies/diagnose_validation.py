@@ -60,7 +60,7 @@ from vp2.diagnose.score import (
     predict,
     transfer,
 )
-from vp2.run.results import read_trials
+from vp2.run.run_dir import read_trials
 from vp2.utils.io import json_safe, write_json_atomic
 
 ASSET = Path(__file__).resolve().parents[2] / "src" / "vp2" / "assets" / "diagnose_predictor.json"

@@ -180,7 +180,9 @@ def measure_scale(args) -> None:
 def shipped_scale1(rows: list[dict], first: int) -> dict[tuple[str, int], bool]:
     """The shipped samples-50 table's oracle success of the scale-1 instances it holds, among
     each task's first ``first`` (the instances the other scales' trials ran on)."""
-    path = Path("results/oracle/samples-50/trials.jsonl")
+    from vp2.run.run_dir import RunDir
+
+    path = RunDir("results/oracle/samples-50").trials_file
     found = {}
     for line in path.read_text().splitlines():
         r = json.loads(line)
@@ -235,10 +237,11 @@ def shipped_by_distance(bins: Sequence[float] = (0.0, 0.1, 0.2, 0.31)) -> str:
     distance (from the shipped suite's states; no simulation): solved / trials per bin."""
     from vp2.data.suite import TaskSuite
     from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
+    from vp2.run.run_dir import RunDir
 
     suite = TaskSuite.load()
     rows = []
-    for line in Path("results/oracle/samples-50/trials.jsonl").read_text().splitlines():
+    for line in RunDir("results/oracle/samples-50").trials_file.read_text().splitlines():
         r = json.loads(line)
         if not r["task"].startswith("tabletop/"):
             continue

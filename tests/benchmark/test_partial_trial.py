@@ -20,10 +20,9 @@ from vp2.run.partial import (
     PartialMismatch,
     PartialTrial,
     load_partial,
-    partial_path,
     save_partial,
 )
-from vp2.run.results import read_trials
+from vp2.run.run_dir import RunDir, read_trials
 from vp2.run.trial import ControlTrial
 
 TASK = "tabletop/push_sphere"
@@ -65,7 +64,7 @@ def test_a_resumed_oracle_trial_ends_as_the_uninterrupted_one(instance, oracle_a
         _trial(instance, oracle_agent, checkpoint=_cut_after(3, saved)).run()
     assert [p.steps for p in saved] == [1, 2, 3]
     # through the file, as a worker keeps it
-    path = partial_path(tmp_path, TASK, 1, 3)
+    path = RunDir(tmp_path).partial_path(TASK, 1, 3)
     save_partial(path, saved[-1])
     partial = load_partial(path)
     np.testing.assert_array_equal(partial.actions, whole.actions[:3])
@@ -140,4 +139,4 @@ def test_a_run_resumes_a_trial_whose_first_attempt_died_mid_way(tmp_path, monkey
     assert record["previous_errors"][0]["message"] == "killed"
     assert record["resumed_at_step"] == 2 and calls == [1, 2, 3, 4]
     assert record["actions"] == whole["actions"] and record["success"] == whole["success"]
-    assert not partial_path(tmp_path / "cut", TASK, 0, 0).exists()  # recorded: deleted
+    assert not RunDir(tmp_path / "cut").partial_path(TASK, 0, 0).exists()  # recorded: deleted

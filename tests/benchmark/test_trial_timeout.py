@@ -19,7 +19,8 @@ from vp2.benchmark.worker import retried_at_once
 from vp2.cli.run import run_config_from_args
 from vp2.planning.config import PlannerConfig
 from vp2.run.config import RunConfig
-from vp2.run.results import read_trials, trial_key
+from vp2.run.results import trial_key
+from vp2.run.run_dir import read_trials
 from vp2.run.trial import TrialTimeout, time_limit
 
 MODEL = f"{__name__}:HangModel"

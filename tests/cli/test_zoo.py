@@ -13,7 +13,7 @@ from vp2 import cli
 from vp2.models.checkpoint import read_model_checkpoint
 from vp2.models.zoo import CHECKPOINT_FILE, FIELDS, get_card
 from vp2.models.zoo_entries import train_command
-from vp2.run.results import read_trials
+from vp2.run.run_dir import read_trials
 
 SHIPPED = "svg_prime-tiny-robodesk"
 

@@ -10,10 +10,10 @@ import pytest
 from vp2.run.results import (
     TrialLog,
     format_summary,
-    read_trials,
     summarize,
     task_success,
 )
+from vp2.run.run_dir import read_trials
 
 
 def _records(task: str, outcomes: dict[int, list[bool | None]], cost: str = "pixel"):

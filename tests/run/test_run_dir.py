@@ -1,9 +1,11 @@
-"""The run directory type and the run's configuration: both config.yaml forms (the planner's
-fields flat, as run directories before the nesting have them, and nested), the trials a
-config covers, summaries, resuming an old directory, and what the suite lacks."""
+"""The run directory type and the run's configuration: its file names (spelled in
+``vp2.run.run_dir`` only), the one config.yaml form (nested) and the conversion of the old
+flat one as it is read, the trials a config covers, summaries, resuming an old directory, and
+what the suite lacks."""
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import json
 import logging
@@ -17,9 +19,10 @@ from tests.benchmark import tiny_suite_path
 from vp2 import spec
 from vp2.benchmark.runner import run_benchmark
 from vp2.planning.planner import PlannerConfig
+from vp2.run import run_dir as run_dir_module
 from vp2.run.config import PROTOCOL_FIELDS, RunConfig, flat_settings, planner_of
 from vp2.run.results import summarize
-from vp2.run.run_dir import RunDir, read_config
+from vp2.run.run_dir import RunDir, nest_legacy_config, read_config
 
 TASK = "tabletop/push_sphere"
 
@@ -63,7 +66,7 @@ def test_runconfig_nests_the_planner():
     assert RunConfig(model="m", out="o").planner == PlannerConfig()
 
 
-def test_runconfig_round_trips_through_both_forms():
+def test_runconfig_round_trips_and_old_flat_mappings_are_nested_first():
     config = RunConfig(model="m", out="o", tasks=("robodesk",), seeds=(3, 4),
                        planner=PlannerConfig("mppi", 8, 0.1, 2, sigma=(0.1, 0.2), options={"a": 1}))
     data = config.to_dict()
@@ -73,13 +76,20 @@ def test_runconfig_round_trips_through_both_forms():
     assert RunConfig.from_dict(data) == config
     assert RunConfig.from_dict(json.loads(json.dumps(data))) == config
     assert RunConfig.from_dict(yaml.safe_load(yaml.safe_dump(data))) == config
-    # The flat form of older run directories: the same config.
+    # The flat form of older run directories: converted to the nested one (in one place),
+    # then the same config; RunConfig itself reads only the nested form.
     old = {k: v for k, v in data.items() if k != "planner"} | {
         "optimizer": "mppi", "num_samples": 8, "gamma": 0.1, "num_iterations": 2}
     expected = dataclasses.replace(config, planner=PlannerConfig("mppi", 8, 0.1, 2))
-    assert RunConfig.from_dict(old) == expected
-    assert RunConfig.from_dict({"model": "m", "out": "o", "num_samples": 8}).planner == (
+    assert nest_legacy_config(old)["planner"] == {"optimizer": "mppi", "num_samples": 8,
+                                                  "gamma": 0.1, "num_iterations": 2}
+    assert RunConfig.from_dict(nest_legacy_config(old)) == expected
+    assert nest_legacy_config(data) is data  # the nested form is left as it is
+    assert RunConfig.from_dict(nest_legacy_config({"model": "m", "out": "o",
+                                                   "num_samples": 8})).planner == (
         PlannerConfig(num_samples=8))
+    with pytest.raises(ValueError, match=r"unknown RunConfig field\(s\) \['num_samples'\]"):
+        RunConfig.from_dict({"model": "m", "out": "o", "num_samples": 8})
     assert flat_settings(data)["num_samples"] == 8 and flat_settings(old) == old
     assert planner_of(data) == config.planner and planner_of(old) == expected.planner
     with pytest.raises(ValueError, match=r"unknown RunConfig field\(s\) \['nope'\]"):
@@ -87,7 +97,8 @@ def test_runconfig_round_trips_through_both_forms():
     with pytest.raises(ValueError, match=r"unknown PlannerConfig field\(s\) \['nope'\]"):
         RunConfig.from_dict({**data, "planner": {"nope": 1}})
     with pytest.raises(ValueError, match="given twice"):
-        RunConfig.from_dict({**data, "num_samples": 9})
+        nest_legacy_config({**data, "num_samples": 9})
+    assert nest_legacy_config({**data, "num_samples": 8})["planner"] == data["planner"]
 
 
 def test_deviations_are_the_same_lines_as_before_the_nesting():
@@ -145,6 +156,15 @@ def test_a_run_dir_reads_both_config_forms(tmp_path):
     assert run.path == tmp_path / "run" and run.config_file == run.path / "config.yaml"
     assert (run.trials_file.name, run.summary_file.name, run.summary_json.name,
             run.gif_dir.name) == ("trials.jsonl", "summary.md", "summary.json", "gifs")
+    # The on-disk format of the other files (docs/evaluation.md, run directory layout).
+    assert [str(p.relative_to(run.path)) for p in (
+        run.report_file, run.precheck_file, run.diagnosis_file,
+        run.gif_path("robodesk/push_red", 7, 1), run.gif_path("robodesk/push_red", 7, 1, plan=True),
+        run.partial_path("tabletop/push_sphere", 3, 2),
+    )] == ["report.html", "precheck.json", "diagnose.json", "gifs/robodesk_push_red/i007_s1.gif",
+           "gifs/robodesk_push_red/i007_s1_plan.gif", "partial/tabletop_push_sphere_i003_s2.npz"]
+    assert run_dir_module.diagnosis_partial_path(run.diagnosis_file) == (
+        run.path / "diagnose.partial.json")
     stored = yaml.safe_load(run.config_file.read_text())
     assert stored["config"]["planner"]["num_samples"] == 8  # written nested
     assert run.config() == config == read_config(run.path)
@@ -211,3 +231,134 @@ def test_more_instances_than_the_suite_has_is_said(tmp_path, caplog):
     with caplog.at_level(logging.WARNING, logger="vp2.benchmark.runner"):
         run_benchmark(_config(tmp_path, out=str(tmp_path / "two"), num_instances=2))
     assert not [m for m in caplog.messages if m.startswith("--")]
+
+
+# --------------------------------------------------------------------------- the old config form
+
+#: A ``config.yaml`` as vp2 0.1.0 wrote it before the planner's settings were nested: the
+#: optimizer's fields beside the others, no ``sigma``/``options``, ``trial_timeout`` or
+#: ``precheck`` (``{out}`` and ``{suite}`` are filled in).
+LEGACY_CONFIG_YAML = """\
+vp2_version: 0.1.0
+written_at: '2025-01-01T00:00:00+00:00'
+spec_deviations:
+- 'num_steps=3 (SPEC: 15)'
+- 'num_samples=8 (SPEC: 200, 800 for open_slide/open_drawer)'
+- '1 seed(s) (SPEC: at least 3 control runs)'
+config:
+  model: repeat_last_frame
+  out: {out}
+  model_args: {{}}
+  agent: planning
+  suite: {suite}
+  tasks: []
+  num_instances: null
+  seeds:
+  - 0
+  optimizer: mppi
+  num_samples: 8
+  gamma: 0.05
+  num_iterations: null
+  cost: auto
+  num_steps: 3
+  stop_on_success: false
+  workers: 1
+  executor: local
+  address: null
+  num_cpus_per_worker: 1.0
+  num_gpus_per_worker: 0.0
+  device: null
+  max_retries: 1
+  resume: false
+  retry_errors: false
+  save_gifs: false
+  save_predictions: false
+  oracle: null
+  progress: false
+"""
+
+
+def test_a_legacy_flat_config_yaml_reads_reports_and_resumes_as_the_nested_form(tmp_path):
+    from vp2 import cli
+
+    config = _config(tmp_path)
+    assert run_benchmark(config).num_run == 2  # writes the nested form
+    run = RunDir(config.out)
+    nested = yaml.safe_load(run.config_file.read_text())
+    nested_settings, nested_stored = run.settings(), run.stored()
+    legacy = LEGACY_CONFIG_YAML.format(out=config.out, suite=config.suite)
+    run.config_file.write_text(legacy)
+    assert "planner" not in yaml.safe_load(run.config_file.read_text())["config"]
+    # Opens as the same RunConfig, and every reader sees the nested form.
+    assert run.config() == config == read_config(run.path)
+    stored = run.stored()
+    assert stored["config"]["planner"] == {"optimizer": "mppi", "num_samples": 8, "gamma": 0.05,
+                                           "num_iterations": None}
+    assert {k: v for k, v in stored["config"].items() if k != "planner"} == {
+        k: v for k, v in nested_stored["config"].items()
+        if k not in ("planner", "trial_timeout", "precheck")}
+    assert run.settings() == {k: v for k, v in nested_settings.items()
+                              if k not in ("sigma", "options", "trial_timeout", "precheck")}
+    assert run.deviations() == nested["spec_deviations"] == config.deviations()
+    # `vp2 report` on it.
+    out = tmp_path / "report.html"
+    assert cli.main(["report", str(run.path), "--out", str(out)]) == 0
+    assert "mppi, 8 samples, 3 steps, cost auto" in out.read_text()
+    # A resume keeps its trials and rewrites the file in the nested form only.
+    again = run_benchmark(dataclasses.replace(config, resume=True))
+    assert again.num_run == 0 and again.num_skipped == 2
+    rewritten = yaml.safe_load(run.config_file.read_text())["config"]
+    assert rewritten == {**nested["config"], "resume": True}
+    assert "num_samples" not in rewritten and run.config() == dataclasses.replace(config,
+                                                                                  resume=True)
+
+
+# --------------------------------------------------------------------------- one owner of the names
+
+#: String literals outside ``vp2.run.run_dir`` that equal or hold a run directory's file name
+#: but name no file of a run directory: (file, name) -> why.
+NOT_RUN_FILES = {
+    ("src/vp2/diagnose/verdicts.py", "partial"): "a verdict's status, not the partial folder",
+    ("benchmarks/studies/tabletop_object_scale.py", "summary.md"):
+        "the study's own summary in its output folder, not a run's",
+}
+
+
+def _literals(path: Path) -> list[tuple[int, str]]:
+    """The string literals of a module (f-string parts included), its docstrings left out."""
+    tree = ast.parse(path.read_text())
+    docstrings = {
+        id(node.body[0].value) for node in ast.walk(tree)
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+        and node.body and isinstance(node.body[0], ast.Expr)
+        and isinstance(node.body[0].value, ast.Constant)
+    }
+    return [(node.lineno, node.value) for node in ast.walk(tree)
+            if isinstance(node, ast.Constant) and isinstance(node.value, str)
+            and id(node) not in docstrings]
+
+
+def test_run_directory_file_names_are_spelled_only_in_run_dir():
+    root = Path(__file__).resolve().parents[2]
+    owner = Path(run_dir_module.__file__).resolve()
+    assert owner == root / "src/vp2/run/run_dir.py"
+    # Names too short to find inside text are matched whole; the others anywhere in a literal.
+    whole = {run_dir_module.GIF_DIR, run_dir_module.PARTIAL_DIR, run_dir_module.PLAN_GIF_SUFFIX,
+             run_dir_module.PARTIAL_SUFFIX}
+    inside = [n for n in run_dir_module.RUN_FILE_NAMES if n not in whole]
+    assert "trials.jsonl" in inside and "config.yaml" in inside and "gifs" in whole
+    found, allowed = [], set()
+    for path in sorted([*(root / "src").rglob("*.py"), *(root / "benchmarks").rglob("*.py")]):
+        if path.resolve() == owner:
+            continue
+        rel = str(path.relative_to(root))
+        for line, text in _literals(path):
+            for name in [n for n in inside if n in text] + [n for n in whole if text == n]:
+                if (rel, name) in NOT_RUN_FILES:
+                    allowed.add((rel, name))
+                else:
+                    found.append(f"{rel}:{line}: {name!r} in {text[:60]!r}")
+    assert not found, (
+        "run directory file names spelled outside vp2.run.run_dir (use its constants or RunDir's "
+        "paths):\n" + "\n".join(found))
+    assert allowed == set(NOT_RUN_FILES)  # no stale allow-list entry

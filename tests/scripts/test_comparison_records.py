@@ -12,7 +12,7 @@ from benchmarks.comparison import records
 from vp2.benchmark.runner import run_benchmark
 from vp2.planning.config import PlannerConfig
 from vp2.run.config import RunConfig
-from vp2.run.results import read_trials
+from vp2.run.run_dir import read_trials
 
 REPO = Path(__file__).resolve().parents[2]
 COMMITTED = REPO / "results" / "comparison" / "robodesk"

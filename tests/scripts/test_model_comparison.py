@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from vp2.data.collect import CollectionConfig, collect
-from vp2.run.results import read_trials
+from vp2.run.run_dir import read_trials
 
 REPO = Path(__file__).resolve().parents[2]
 MODULE = "benchmarks.comparison.model_comparison"

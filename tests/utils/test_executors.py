@@ -30,7 +30,8 @@ from vp2.data import storage
 from vp2.data.collect import CollectionConfig, collect
 from vp2.planning.config import PlannerConfig
 from vp2.run.config import RunConfig
-from vp2.run.results import read_trials, trial_key
+from vp2.run.results import trial_key
+from vp2.run.run_dir import read_trials
 from vp2.utils.executors import LiveQueue, LocalExecutor, RayExecutor, WorkerLost, make_executor
 
 ray = pytest.importorskip("ray")

@@ -30,10 +30,9 @@ _LAZY_MODULES: dict[str, list[str]] = {
         "PluginError", "load_plugin", "model_identity", "parse_model_args", "resolve_model"
     ],
     "vp2.run.results": [
-        "Summary", "TaskSummary", "TrialLog", "format_summary", "read_trials", "summarize",
-        "task_success",
+        "Summary", "TaskSummary", "TrialLog", "format_summary", "summarize", "task_success",
     ],
-    "vp2.run.run_dir": ["RunDir", "read_config"],
+    "vp2.run.run_dir": ["RunDir", "read_config", "read_trials"],
     "vp2.benchmark.runner": ["ModelFailure", "RunResult", "run_benchmark", "select_instances"],
     "vp2.run.trial": ["ControlTrial", "TrialResult", "trial_seed"],
     "vp2.classifiers.registry": ["CLASSIFIERS", "ClassifierRegistry"],

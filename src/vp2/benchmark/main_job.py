@@ -42,6 +42,7 @@ from vp2.oracle.shipped import (
 from vp2.planning.planner import PlannerConfig
 from vp2.run.config import RunConfig
 from vp2.run.results import Summary
+from vp2.run.run_dir import GIF_DIR, SUMMARY_FILE, TRIALS_FILE, RunDir
 from vp2.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
@@ -226,7 +227,7 @@ def comparison_table(results: dict[str, RunResult], shipped: ShippedOracle | Non
             notes.append(f"- {name}: not the SPEC protocol: {'; '.join(dev)}")
         if r.num_errors:
             notes.append(f"- {name}: {r.num_errors} trial(s) ended in an error "
-                         f"(see {r.run_dir / 'trials.jsonl'})")
+                         f"(see {RunDir(r.run_dir).trials_file})")
     return "\n".join(lines + ([""] + notes if notes else []))
 
 
@@ -267,7 +268,7 @@ def run_main_job(
     text = (f"# vp2 main: success per task category\n\n{table}\n\n"
             f"Success = the task's criterion held at some step of a 15-step trial "
             f"(cell: success rate (trials)). Wall time: {took}.\n\n"
-            + "\n".join(f"- {n}: `{r.run_dir}` (summary.md, trials.jsonl, gifs/)"
+            + "\n".join(f"- {n}: `{r.run_dir}` ({SUMMARY_FILE}, {TRIALS_FILE}, {GIF_DIR}/)"
                         for n, r in results.items()) + "\n")
     path = out / "main.md"
     with atomic_path(path) as tmp:

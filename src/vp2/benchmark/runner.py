@@ -71,12 +71,11 @@ from vp2.benchmark.worker import (
     worker_died,
 )
 from vp2.data.suite import TaskInstance, TaskSuite
-from vp2.diagnose.model import PRECHECK_FILE, precheck_model
+from vp2.diagnose.model import precheck_model
 from vp2.envs import ENV_TASKS
 from vp2.oracle.shipped import is_oracle_config, load_shipped_oracle, summarize_run
 from vp2.run.config import RunConfig
 from vp2.run.model_spec import MODEL_DOCS, check_spec
-from vp2.run.partial import partial_path
 from vp2.run.results import Summary, format_summary, is_ok, trial_key, trial_keys
 from vp2.run.run_dir import Records, RunDir
 from vp2.utils.executors import LiveQueue, LocalExecutor, RayExecutor, WorkerLost
@@ -208,7 +207,7 @@ def run_benchmark(
     if config.precheck and jobs and not existing:  # before the run's first trial
         measures = precheck_model(config, envs_of(jobs))
         if measures:  # the report shows it beside the control score
-            write_json_atomic(run_dir / PRECHECK_FILE, json_safe({"precheck": measures}))
+            write_json_atomic(run.precheck_file, json_safe({"precheck": measures}))
     max_attempts = config.max_retries + 1
     requeue: collections.deque[Job] = collections.deque()
     num_run = successes = finished = 0
@@ -270,7 +269,7 @@ def run_benchmark(
                 else:
                     trial_log.append(record)
                     if record["error"] is None:  # recorded: its progress file is done with
-                        partial_path(run_dir, *job.key).unlink(missing_ok=True)
+                        run.partial_path(*job.key).unlink(missing_ok=True)
                 num_run += 1
                 finished += record["error"] is None
                 successes += bool(record.get("success"))

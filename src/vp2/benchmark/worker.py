@@ -45,10 +45,10 @@ from vp2.run.partial import (
     PartialMismatch,
     PartialTrial,
     load_partial,
-    partial_path,
     save_partial,
 )
 from vp2.run.results import TrialKey
+from vp2.run.run_dir import RunDir
 from vp2.run.trial import ControlTrial, TrialResult, TrialTimeout, can_time_limit, time_limit
 from vp2.utils.tensors import resolve_device
 
@@ -286,7 +286,7 @@ def _attempt_trial(job: Job) -> Outcome:
         record = {**_base_record(job, fallback_identity), "success": None}
         return Outcome(job.key, {**record, "error": error_record(exc, "model_build")}, fatal=True)
     record = _base_record(job, identity)
-    partial_file = partial_path(cfg.out, *job.key)
+    partial_file = RunDir(cfg.out).partial_path(*job.key)
     trial_meta = {key: record[key] for key in ("model", "vp2_version", "render_fingerprint")}
 
     def make_trial(resume: PartialTrial | None) -> ControlTrial:

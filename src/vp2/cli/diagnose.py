@@ -7,8 +7,9 @@ from pathlib import Path
 
 from vp2.cli._fields import Flag, add_flags, build
 from vp2.cli.metrics import model_slug
-from vp2.diagnose.model import REPORT_FILE, DiagnoseConfig
+from vp2.diagnose.model import DiagnoseConfig
 from vp2.run.model_spec import parse_model_args
+from vp2.run.run_dir import DIAGNOSIS_FILE, DIAGNOSIS_PARTIAL_SUFFIX, diagnosis_partial_path
 
 NAME = "diagnose"
 HELP = "whether a model can plan, in minutes: action conditioning, its cost's ranking (docs/diagnose.md)"
@@ -63,16 +64,16 @@ FLAGS: dict[str, Flag | None] = {
         metavar="FILE",
         default=None,
         cli_only=True,
-        help=f"report JSON (default: runs/diagnose/<model-slug>-<env>/{REPORT_FILE}); the "
-        "measurements of an unfinished diagnosis wait beside it in <name>.partial.json, and "
-        "re-running the same command goes on from them",
+        help=f"report JSON (default: runs/diagnose/<model-slug>-<env>/{DIAGNOSIS_FILE}); the "
+        f"measurements of an unfinished diagnosis wait beside it in "
+        f"<name>{DIAGNOSIS_PARTIAL_SUFFIX}, and re-running the same command goes on from them",
     ),
 }
 
 
 def default_out(spec: str, env: str) -> Path:
     """``runs/diagnose/<model-slug>-<env>/diagnose.json``."""
-    return Path("runs") / "diagnose" / f"{model_slug(spec)}-{env}" / REPORT_FILE
+    return Path("runs") / "diagnose" / f"{model_slug(spec)}-{env}" / DIAGNOSIS_FILE
 
 
 def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -94,7 +95,7 @@ def run_from_args(args: argparse.Namespace) -> int:
     config = build(DiagnoseConfig, args, FLAGS)
     config.validate()
     out = report_path(args.out or default_out(config.model, diagnose_env(config)[0]))
-    partial = partial_path(out)
+    partial = diagnosis_partial_path(out)
     report = diagnose_model(config, partial=partial)
     write_report(out, report)
     partial.unlink(missing_ok=True)
@@ -102,8 +103,3 @@ def run_from_args(args: argparse.Namespace) -> int:
     print(f"wrote {out}")
     return 0
 
-
-def partial_path(report: Path) -> Path:
-    """Where ``vp2 diagnose`` keeps the measurements of an unfinished diagnosis: beside its
-    report, ``<report stem>.partial.json`` (deleted once the report is written)."""
-    return report.with_name(f"{report.stem}.partial.json")

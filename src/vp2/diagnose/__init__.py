@@ -24,8 +24,8 @@ from typing import Any
 #: Where the names of the package live (imported on first use).
 _LAZY_MODULES: dict[str, list[str]] = {
     "vp2.diagnose.model": [
-        "DiagnoseConfig", "PRECHECK_FILE", "REPORT_FILE", "diagnose_model", "format_report",
-        "measure_conditioning", "precheck_model", "write_report",
+        "DiagnoseConfig", "diagnose_model", "format_report", "measure_conditioning",
+        "precheck_model", "write_report",
     ],
     "vp2.diagnose.partial": ["PartialDiagnosis"],
     "vp2.diagnose.score": ["load_predictor", "predicted_score"],

@@ -77,6 +77,7 @@ from vp2.diagnose.verdicts import (
 from vp2.envs import ENV_TASKS, env_class
 from vp2.run.config import RunConfig
 from vp2.run.model_spec import BUILTIN_MODELS, ModelSpec, model_identity, resolve_model
+from vp2.run.run_dir import DIAGNOSIS_FILE
 from vp2.utils.seeds import check_seed
 
 log = logging.getLogger(__name__)
@@ -84,8 +85,6 @@ log = logging.getLogger(__name__)
 __all__ = [
     "FORMAT",
     "PRECHECK_CLIPS",
-    "PRECHECK_FILE",
-    "REPORT_FILE",
     "DiagnoseConfig",
     "checkpoint_env",
     "diagnose_env",
@@ -100,12 +99,8 @@ __all__ = [
 ]
 
 FORMAT = "vp2-diagnose/1"
-#: The file :func:`write_report` writes inside a directory.
-REPORT_FILE = "diagnose.json"
 #: Held-out clips of the run's pre-check (:func:`precheck_model`), one sampling seed.
 PRECHECK_CLIPS = 16
-#: The file of a run directory that holds its pre-check's measures (the report reads it).
-PRECHECK_FILE = "precheck.json"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -363,7 +358,8 @@ def diagnose_model(config: DiagnoseConfig, partial: str | Path | None = None) ->
 
 
 def write_report(path: str | Path, report: dict[str, Any]) -> Path:
-    """Writes the report as JSON, atomically; a directory gets :data:`REPORT_FILE` in it."""
+    """Writes the report as JSON, atomically; a directory gets
+    :data:`~vp2.run.run_dir.DIAGNOSIS_FILE` in it."""
     from vp2.utils.io import json_safe, write_json_atomic
 
     path = report_path(path)
@@ -373,9 +369,10 @@ def write_report(path: str | Path, report: dict[str, Any]) -> Path:
 
 
 def report_path(path: str | Path) -> Path:
-    """The file :func:`write_report` writes for ``path`` (a directory gets :data:`REPORT_FILE`)."""
+    """The file :func:`write_report` writes for ``path`` (a directory gets
+    :data:`~vp2.run.run_dir.DIAGNOSIS_FILE`)."""
     path = Path(path)
-    return path / REPORT_FILE if path.is_dir() or not path.suffix else path
+    return path / DIAGNOSIS_FILE if path.is_dir() or not path.suffix else path
 
 
 def diagnose_env(config: DiagnoseConfig) -> tuple[str, str]:

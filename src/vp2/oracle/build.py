@@ -33,8 +33,8 @@ from vp2.oracle.shipped import (
     is_oracle_config,
 )
 from vp2.run.config import planner_of
-from vp2.run.results import is_ok, read_trials, task_success, trial_key
-from vp2.run.run_dir import RunDir
+from vp2.run.results import is_ok, task_success, trial_key
+from vp2.run.run_dir import CONFIG_FILE, TRIALS_FILE, RunDir, read_trials
 from vp2.utils.io import atomic_path, write_json_atomic
 
 #: Where the tables' evidence lives, relative to the repository root.
@@ -42,7 +42,6 @@ RESULTS_DIR = Path("results") / "oracle"
 #: Format tag of a table's ``meta.json``.
 META_FORMAT = "vp2-oracle-table/1"
 META_FILE = "meta.json"
-TRIALS_FILE = "trials.jsonl"
 #: What a table name may be (it names a folder).
 TABLE_NAME = re.compile(r"[a-z0-9][a-z0-9._-]{0,63}")
 #: Fields of a compact trial record (``classifier`` only where the trial used one).
@@ -180,9 +179,9 @@ def _render_of(envs: Iterable[str], records: Sequence[dict[str, Any]]) -> dict[s
 
 def _check_run(run: RunDir, settings: dict[str, Any] | None) -> tuple[dict[str, Any], list]:
     """A run's flat config and records, refused unless a finished oracle run like the others."""
-    config = run.settings()  # the flat form: SETTINGS name the planner's fields directly
+    config = run.settings()  # shown flat: SETTINGS name the planner's fields directly
     if not config:
-        raise ValueError(f"{run.path}: no config.yaml (not a vp2 run directory)")
+        raise ValueError(f"{run.path}: no {CONFIG_FILE} (not a vp2 run directory)")
     if not is_oracle_config(config):
         raise ValueError(
             f"{run.path} is not a simulator-oracle run (model {config.get('model')!r}, agent "
@@ -190,7 +189,7 @@ def _check_run(run: RunDir, settings: dict[str, Any] | None) -> tuple[dict[str, 
         )
     records = list({trial_key(r): r for r in run.trials()}.values())
     if not records:
-        raise ValueError(f"{run.path}: no trials in trials.jsonl")
+        raise ValueError(f"{run.path}: no trials in {TRIALS_FILE}")
     errors = [r for r in records if not is_ok(r)]
     if errors:
         e = errors[0]

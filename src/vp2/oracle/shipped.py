@@ -58,7 +58,8 @@ from vp2.oracle.tables import (
     match_tables,
     samples_text,
 )
-from vp2.run.results import Summary, read_trials, summarize
+from vp2.run.results import Summary, summarize
+from vp2.run.run_dir import read_trials
 
 PathLike = str | os.PathLike[str]
 

@@ -9,7 +9,6 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from vp2.diagnose.model import PRECHECK_FILE, REPORT_FILE
 from vp2.oracle.shipped import is_oracle_config, load_shipped_oracle, summarize_run
 from vp2.run.config import planner_of
 from vp2.run.results import Summary, summarize
@@ -68,8 +67,8 @@ def read_diagnosis(run_dir: PathLike) -> list[dict[str, Any]]:
     ``predicted`` and
     ``predicted_reason`` (``None`` for a pre-check).
     """
-    path = Path(run_dir)
-    full = path / REPORT_FILE
+    run = RunDir(run_dir)
+    full = run.diagnosis_file
     if full.is_file():
         report = json.loads(full.read_text())
         cond = report.get("action_conditioning") or {}
@@ -88,7 +87,7 @@ def read_diagnosis(run_dir: PathLike) -> list[dict[str, Any]]:
             "predicted": report.get("predicted_control_score"),
             "predicted_reason": report.get("predicted_control_score_reason"),
         }]  # fmt: skip
-    pre = path / PRECHECK_FILE
+    pre = run.precheck_file
     if not pre.is_file():
         return []
     out = []

@@ -7,8 +7,9 @@ model_spec.py       the model to benchmark from ``package.module:factory``, a YA
                     checkpoint (resolve_model), and ``--model-arg`` (parse_model_args)
 trial.py            ControlTrial: one agent on one task instance for 15 steps
 partial.py          a trial's progress on disk, so that a cut-off trial resumes at its step
-run_dir.py          RunDir, a run directory: config.yaml, trials.jsonl, summaries, the
-                    trials its config covers, the checks of a resume
+run_dir.py          RunDir, a run directory: every file name of it, config.yaml (and the
+                    form of old ones), trials.jsonl, summaries, the trials its config
+                    covers, the checks of a resume
 results.py          reading records, success rates over seeds, normalising by oracle rows
 ==================  ==========================================================================
 
@@ -30,12 +31,11 @@ _LAZY_MODULES: dict[str, list[str]] = {
         "ModelSpec", "PluginError", "check_spec", "load_plugin", "model_identity",
         "parse_model_args", "resolve_model",
     ],
-    "vp2.run.partial": ["PartialTrial", "partial_path"],
+    "vp2.run.partial": ["PartialTrial"],
     "vp2.run.results": [
-        "Summary", "TaskSummary", "TrialLog", "format_summary", "read_trials", "summarize",
-        "task_success",
+        "Summary", "TaskSummary", "TrialLog", "format_summary", "summarize", "task_success",
     ],
-    "vp2.run.run_dir": ["RunDir", "read_config"],
+    "vp2.run.run_dir": ["RunDir", "read_config", "read_trials"],
     "vp2.run.trial": ["ControlTrial", "TrialResult", "trial_seed"],
 }
 _LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}

@@ -1,9 +1,9 @@
 """The configuration of a benchmark run: :class:`RunConfig`, one field per ``vp2 run`` flag.
 
 The planner's settings are one nested :class:`~vp2.planning.config.PlannerConfig`
-(``RunConfig.planner``), and ``config.yaml`` stores them nested (``planner:``);
-:meth:`RunConfig.from_dict` also reads the flat form of run directories written before
-(``optimizer``, ``num_samples``, ``gamma``, ``num_iterations`` beside the other fields).
+(``RunConfig.planner``), and ``config.yaml`` stores them nested (``planner:``). A run
+directory written before the nesting is converted to this form as it is read
+(:func:`vp2.run.run_dir.nest_legacy_config`).
 
 Making a ``RunConfig`` and reading a run directory's config does not load torch
 (:class:`~vp2.planning.config.PlannerConfig` is plain data); validating one builds the
@@ -39,8 +39,9 @@ PROTOCOL_FIELDS: tuple[str, ...] = (
 
 
 def flat_settings(data: Mapping[str, Any]) -> dict[str, Any]:
-    """A ``config`` mapping of ``config.yaml`` with the planner's fields beside the others (the
-    flat form, whichever form the file has), e.g. to show a run's settings."""
+    """A ``config`` mapping of ``config.yaml`` shown with the planner's fields beside the
+    others (``{"model": ..., "optimizer": ..., "num_samples": ...}``), e.g. to show a run's
+    settings or to look one up by its field name."""
     out = {k: v for k, v in data.items() if k != "planner"}
     planner = data.get("planner")
     if isinstance(planner, Mapping):
@@ -49,8 +50,8 @@ def flat_settings(data: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def planner_of(data: Mapping[str, Any]) -> PlannerConfig:
-    """The planner of a ``config`` mapping in either form; fields it lacks take their
-    defaults, keys that are no planner field are ignored."""
+    """The planner of a ``config`` mapping, nested or shown flat (:func:`flat_settings`);
+    fields it lacks take their defaults, keys that are no planner field are ignored."""
     names = {f.name for f in dataclasses.fields(PlannerConfig)}
     values = {k: v for k, v in flat_settings(data).items() if k in names}
     if values.get("sigma") is not None:
@@ -218,9 +219,9 @@ class RunConfig:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> RunConfig:
-        """Inverse of :meth:`to_dict`; also reads the flat form (the planner's fields beside
-        the others) of run directories written before the planner was nested. Unknown keys
-        are an error."""
+        """Inverse of :meth:`to_dict` (the planner nested, as ``config.yaml`` stores it; a
+        run directory's old flat form is converted first, by
+        :func:`vp2.run.run_dir.nest_legacy_config`). Unknown keys are an error."""
         names = {f.name for f in dataclasses.fields(cls)}
         planner_names = {f.name for f in dataclasses.fields(PlannerConfig)}
         data = dict(data)
@@ -229,17 +230,13 @@ class RunConfig:
             nested = dataclasses.asdict(nested)
         if not isinstance(nested, Mapping):
             raise ValueError(f"planner must be a mapping of PlannerConfig fields, got {nested!r}")
-        flat = {k: data.pop(k) for k in [k for k in data if k in planner_names and k not in names]}
         unknown = set(data) - names
         if unknown:
             raise ValueError(f"unknown RunConfig field(s) {sorted(unknown)}")
         unknown = set(nested) - planner_names
         if unknown:
             raise ValueError(f"unknown PlannerConfig field(s) {sorted(unknown)}")
-        clash = sorted(k for k in flat if k in nested and flat[k] != nested[k])
-        if clash:
-            raise ValueError(f"planner field(s) {clash} given twice, flat and nested, differently")
-        planner = {**nested, **flat}
+        planner = dict(nested)
         if planner.get("sigma") is not None:
             planner["sigma"] = tuple(planner["sigma"])
         for key in ("tasks", "seeds"):

@@ -2,7 +2,8 @@
 
 A SPEC-count oracle trial plans 200 or 800 candidates per step and can take hours on a CPU; a
 run that ends (a session's end, a killed process) would lose the trial in progress. While a
-trial runs, the worker keeps ``<run>/partial/<task>_i<index>_s<seed>.npz`` up to date (every
+trial runs, the worker keeps ``<run>/partial/<task>_i<index>_s<seed>.npz``
+(:meth:`vp2.run.run_dir.RunDir.partial_path`) up to date (every
 :data:`CHECKPOINT_EVERY_S` seconds of trial time, after a control step): the executed actions,
 success flags, planning times, scores, the predicted frames of the chosen plans, and the
 agent's state after the step (its warm-start plan and its random generators). A resumed trial
@@ -33,8 +34,6 @@ from vp2.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
 
-#: Folder of a run directory that holds the partial trials.
-PARTIAL_DIR = "partial"
 #: A trial writes its progress when this many seconds of the trial have passed since the last
 #: write (or its start): trials of seconds never write, hour-long ones lose at most this much.
 CHECKPOINT_EVERY_S = 30.0
@@ -75,11 +74,6 @@ class PartialTrial:
     @property
     def steps(self) -> int:
         return len(self.success_steps)
-
-
-def partial_path(run_dir: str | Path, task: str, index: int, seed: int) -> Path:
-    """Where a run keeps the partial trial of ``(task, index, seed)``."""
-    return Path(run_dir) / PARTIAL_DIR / f"{task.replace('/', '_')}_i{index:03d}_s{seed}.npz"
 
 
 def save_partial(path: Path, partial: PartialTrial) -> None:

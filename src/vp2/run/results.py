@@ -2,7 +2,7 @@
 
 A run directory holds one JSON line per finished trial, appended by the driver process
 alone. A line is written with one ``write`` call, flushed and ``fsync``-ed, so after a crash
-at most the last line is partial; :func:`read_trials` ignores it (and ``repair=True`` cuts it
+at most the last line is partial; :func:`read_trials_file` ignores it (and ``repair=True`` cuts it
 off before a resumed run appends).
 
 Scores: per task category, the success rate of each control run (seed) over its instances,
@@ -28,8 +28,6 @@ from typing import Any, TextIO
 
 from vp2.envs.tasks import TASK_NAMES
 
-TRIALS_FILE = "trials.jsonl"
-
 TrialKey = tuple[str, int, int]
 
 
@@ -50,17 +48,14 @@ def is_ok(record: dict[str, Any]) -> bool:
     return record.get("error") is None
 
 
-def trials_path(path: str | os.PathLike[str]) -> Path:
-    """``path`` itself if it is a file, else ``path / trials.jsonl``."""
-    path = Path(path)
-    return path / TRIALS_FILE if path.is_dir() else path
-
-
-def read_trials(path: str | os.PathLike[str], repair: bool = False) -> list[dict[str, Any]]:
-    """Reads the records of a run directory or ``trials.jsonl`` file.
+def read_trials_file(
+    path: str | os.PathLike[str], repair: bool = False
+) -> list[dict[str, Any]]:
+    """Reads the records of a ``trials.jsonl`` file (of a run directory or a directory:
+    :func:`vp2.run.run_dir.read_trials`).
 
     Args:
-        path: Run directory or the file itself. A missing file reads as no records.
+        path: The file. A missing file reads as no records.
         repair: Truncate a partial last line (left by a killed writer) from the file, so that
             appending can continue. Only the process that owns the run may do this.
 
@@ -71,7 +66,7 @@ def read_trials(path: str | os.PathLike[str], repair: bool = False) -> list[dict
         ValueError: if a line other than the last is not valid JSON (the file was damaged by
             something other than an interrupted append).
     """
-    path = trials_path(path)
+    path = Path(path)
     if not path.exists():
         return []
     data = path.read_bytes()
@@ -97,7 +92,7 @@ class TrialLog:
 
     Each record is one line written with a single ``write``, then flushed and ``fsync``-ed,
     so a record is either wholly on disk or (after a crash) a partial last line that
-    :func:`read_trials` drops.
+    :func:`read_trials_file` drops.
     """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
