@@ -10,7 +10,8 @@ partial.py          a trial's progress on disk, so that a cut-off trial resumes 
 run_dir.py          RunDir, a run directory: every file name of it, config.yaml (and the
                     form of old ones), trials.jsonl, summaries, the trials its config
                     covers, the checks of a resume
-results.py          reading records, success rates over seeds, normalising by oracle rows
+results.py          the records' writer (TrialLog), success rates over seeds, normalising by
+                    oracle rows
 ==================  ==========================================================================
 
 This room knows nothing of the shipped oracle (:mod:`vp2.oracle`), the diagnosis
