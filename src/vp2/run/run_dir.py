@@ -136,8 +136,8 @@ def nest_legacy_config(config: dict[str, Any]) -> dict[str, Any]:
     ``optimizer``, ``num_samples``, ``gamma`` and ``num_iterations`` (``sigma`` and ``options``
     did not exist). Such a mapping is returned with those keys moved under ``planner``; a
     nested one (or any mapping without those keys) is returned unchanged. This is the one place
-    that reads the old form: every reader of a run's configuration goes through
-    :meth:`RunDir.stored`.
+    that reads the old form: :class:`RunDir` converts ``config.yaml`` with it as it reads the
+    file (:meth:`RunDir.stored`, :meth:`RunDir.settings`, :meth:`RunDir.config`).
 
     Raises:
         ValueError: a planner field given twice, flat and nested, differently.
