@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from vp2.benchmark.diagnose import REPORT_FILE, DiagnoseConfig
-from vp2.benchmark.model_spec import parse_model_args
+from vp2.benchmark.model_spec import ENSEMBLE_PREFIX, ModelSpec, parse_model_args
 from vp2.cli._fields import Flag, add_flags, build
 from vp2.cli.metrics import model_slug
 
@@ -26,7 +26,7 @@ FLAGS: dict[str, Flag | None] = {
     "model": Flag(
         required=True,
         help="model spec, as vp2 run takes it: simulator | repeat_last_frame | NAME:CHECKPOINT | "
-        "package.module:factory | file.yaml",
+        "zoo:NAME | package.module:factory | file.yaml (an ensemble(...): diagnose each member)",
     ),
     "env": Flag(
         choices=["robodesk", "tabletop"],
@@ -93,6 +93,12 @@ def run_from_args(args: argparse.Namespace) -> int:
 
     config = build(DiagnoseConfig, args, FLAGS)
     config.validate()
+    if config.model.startswith(ENSEMBLE_PREFIX):
+        members = ModelSpec.parse(config.model).members
+        raise ValueError(
+            f"model {config.model!r}: an ensemble is not diagnosed as one model; diagnose each "
+            f"member on its own ({', '.join(f'--model {m.text}' for m in members)})"
+        )
     out = report_path(args.out or default_out(config.model, diagnose_env(config)[0]))
     partial = partial_path(out)
     report = diagnose_model(config, partial=partial)
