@@ -184,9 +184,9 @@ class ModelSpec:
     @classmethod
     def parse(cls, text: str) -> ModelSpec:
         """The spec a string is: a built-in name, else a ``.yaml``/``.yml`` file, else
-        ``ensemble(...)`` (each member parsed), else ``zoo:NAME`` (its card is read), else ``NAME:CHECKPOINT`` if the part before the first
-        colon is a registered model (both import the models, and torch), else
-        ``package.module:factory``. Reads no other file.
+        ``ensemble(...)`` (each member parsed), else ``zoo:NAME`` (its card is read), else
+        ``NAME:CHECKPOINT`` if the part before the first colon is a registered model (both
+        import the models, and torch), else ``package.module:factory``. Reads no other file.
 
         Raises:
             PluginError: none of these forms, or a zoo name the zoo does not have (for an
