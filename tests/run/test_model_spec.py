@@ -266,3 +266,52 @@ def test_an_unknown_or_altered_zoo_entry_is_refused(tmp_path, monkeypatch):
         with pytest.raises(PluginError, match="zoo model 'mini': the checkpoint .* does not "
                            "match its card"):
             call()
+
+
+# --------------------------------------------------------------------------- ensembles
+
+TINY = "zoo:svg_prime-tiny-tabletop"
+
+
+def test_an_ensemble_parses_its_members_and_resolves_to_an_ensemble_model():
+    text = f"ensemble({TINY}, repeat_last_frame)"
+    spec = ModelSpec.parse(text)
+    assert spec.kind == "ensemble" and spec.text == text
+    assert [(m.text, m.kind) for m in spec.members] == [(TINY, "zoo"), ("repeat_last_frame",
+                                                                         "builtin")]
+    check_spec(spec)
+    model = resolve_model(spec, {}, env="tabletop", action_dim=4, device="cpu")
+    ensemble = unwrap(model)
+    assert ensemble.labels == [TINY, "repeat_last_frame"]
+    assert (ensemble.action_dim, ensemble.num_future, ensemble.image_size) == (4, 10, 64)
+    identity = model_identity(spec, {}, model)
+    assert identity["class"] == "vp2.models.ensemble.EnsembleModel" and identity["spec"] == text
+    assert [m["spec"] for m in identity["ensemble"]] == [TINY, "repeat_last_frame"]
+    assert identity["ensemble"][0]["zoo"]["name"] == "svg_prime-tiny-tabletop"
+    # No other form reads an ensemble: a factory, a checkpoint or a zoo name has no '('.
+    assert ModelSpec.parse("ensemble:make").kind == "factory"
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (f"ensemble({TINY})", f"model 'ensemble({TINY})': 1 member; an ensemble is "
+         "ensemble(SPEC,SPEC,...), e.g. ensemble(zoo:a,zoo:b)"),
+        (f"ensemble({TINY},,{TINY})", f"model 'ensemble({TINY},,{TINY})': member 2 is empty; "),
+        (f"ensemble({TINY},{TINY}", f"model 'ensemble({TINY},{TINY}': no closing ')'; "),
+        (f"ensemble({TINY},zoo:nope)", f"ensemble member 2 of 'ensemble({TINY},zoo:nope)': "
+         "model 'zoo:nope': no model 'nope' in the zoo"),
+        (f"ensemble({TINY},svg_prime:/no/such.pt)", f"ensemble member 2 of 'ensemble({TINY},"
+         "svg_prime:/no/such.pt)': model 'svg_prime:/no/such.pt': no checkpoint at /no/such.pt"),
+        (f"ensemble(oracle,{TINY})", f"ensemble member 1 of 'ensemble(oracle,{TINY})', "
+         "'oracle': an ensemble member predicts from frames (not the simulator, not an ensemble)"),
+        (f"ensemble({TINY},zoo:svg_prime-tiny-robodesk)", f"model 'ensemble({TINY},"
+         "zoo:svg_prime-tiny-robodesk)': ensemble member 'zoo:svg_prime-tiny-robodesk' was "
+         f"trained on robodesk, member '{TINY}' was trained on tabletop; members must agree on "
+         "the environment and on num_context, num_future, action_dim, image_size"),
+    ],
+)
+def test_a_bad_ensemble_is_one_line_naming_the_member(text, message):
+    with pytest.raises(PluginError) as error:
+        check_spec(text)
+    assert str(error.value).startswith(message) and "\n" not in str(error.value)

@@ -70,8 +70,13 @@ def test_runconfig_round_trips_and_old_flat_mappings_are_nested_first():
     config = RunConfig(model="m", out="o", tasks=("robodesk",), seeds=(3, 4),
                        planner=PlannerConfig("mppi", 8, 0.1, 2, sigma=(0.1, 0.2), options={"a": 1}))
     data = config.to_dict()
+    unset = dict.fromkeys(["num_elites", "num_samples_first", "num_refined", "lr", "grad_steps"])
     assert data["planner"] == {"optimizer": "mppi", "num_samples": 8, "gamma": 0.1,
-                               "num_iterations": 2, "sigma": [0.1, 0.2], "options": {"a": 1}}
+                               "num_iterations": 2, **unset, "sigma": [0.1, 0.2],
+                               "options": {"a": 1}}
+    # A config.yaml written before the planner had those settings reads as the same config.
+    before = data | {"planner": {k: v for k, v in data["planner"].items() if k not in unset}}
+    assert RunConfig.from_dict(before) == config
     assert "num_samples" not in data and data["tasks"] == ["robodesk"]
     assert RunConfig.from_dict(data) == config
     assert RunConfig.from_dict(json.loads(json.dumps(data))) == config
@@ -128,8 +133,9 @@ def test_deviations_are_the_same_lines_as_before_the_nesting():
 def test_protocol_lists_the_planners_fields_one_by_one():
     protocol = RunConfig(model="m", out="o").protocol()
     assert list(protocol) == ["model", "model_args", "agent", "suite", "optimizer",
-                              "num_samples", "gamma", "num_iterations", "sigma", "options",
-                              "cost", "num_steps"]
+                              "num_samples", "gamma", "num_iterations", "num_elites",
+                              "num_samples_first", "num_refined", "lr", "grad_steps", "sigma",
+                              "options", "cost", "num_steps"]
     assert protocol["gamma"] == spec.GAMMA and "planner" in PROTOCOL_FIELDS
 
 
@@ -297,8 +303,11 @@ def test_a_legacy_flat_config_yaml_reads_reports_and_resumes_as_the_nested_form(
     assert {k: v for k, v in stored["config"].items() if k != "planner"} == {
         k: v for k, v in nested_stored["config"].items()
         if k not in ("planner", "trial_timeout", "precheck")}
-    assert run.settings() == {k: v for k, v in nested_settings.items()
-                              if k not in ("sigma", "options", "trial_timeout", "precheck")}
+    # The legacy form predates the sigma/options records and the planner fields added since
+    # (CEM's elites, CEM-GD's and L-BFGS's steps): they are absent, not defaulted.
+    newer = ("sigma", "options", "trial_timeout", "precheck", "num_elites", "num_samples_first",
+             "num_refined", "lr", "grad_steps")
+    assert run.settings() == {k: v for k, v in nested_settings.items() if k not in newer}
     assert run.deviations() == nested["spec_deviations"] == config.deviations()
     # `vp2 report` on it.
     out = tmp_path / "report.html"

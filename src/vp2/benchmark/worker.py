@@ -37,6 +37,7 @@ from vp2.envs.base import Env
 from vp2.envs.cache import EnvCache
 from vp2.envs.render_specs import render_fingerprint
 from vp2.models.contract import gradient_problem, model_failure
+from vp2.models.ensemble import EnsembleMismatch
 from vp2.planning.agent import Agent, PlanningAgent, RandomActions
 from vp2.planning.planner import GRADIENT_OPTIMIZERS
 from vp2.run.config import RunConfig
@@ -271,7 +272,8 @@ def _attempt_trial(job: Job) -> Outcome:
     try:
         _STATE.prepare()
     except Exception as exc:
-        where = "model_check" if isinstance(exc, ModelMismatch) else "model_build"
+        mismatch = isinstance(exc, (ModelMismatch, EnsembleMismatch))
+        where = "model_check" if mismatch else "model_build"
         record = {**_base_record(job, fallback_identity), "success": None}
         return Outcome(job.key, {**record, "error": error_record(exc, where)}, fatal=True)
     try:

@@ -8,7 +8,7 @@ from pathlib import Path
 from vp2.cli._fields import Flag, add_flags, build
 from vp2.cli.metrics import model_slug
 from vp2.diagnose.model import DiagnoseConfig
-from vp2.run.model_spec import parse_model_args
+from vp2.run.model_spec import ENSEMBLE_PREFIX, ModelSpec, parse_model_args
 from vp2.run.run_dir import DIAGNOSIS_FILE, DIAGNOSIS_PARTIAL_SUFFIX, diagnosis_partial_path
 
 NAME = "diagnose"
@@ -27,7 +27,7 @@ FLAGS: dict[str, Flag | None] = {
     "model": Flag(
         required=True,
         help="model spec, as vp2 run takes it: simulator | repeat_last_frame | NAME:CHECKPOINT | "
-        "package.module:factory | file.yaml",
+        "zoo:NAME | package.module:factory | file.yaml (an ensemble(...): diagnose each member)",
     ),
     "env": Flag(
         choices=["robodesk", "tabletop"],
@@ -94,6 +94,12 @@ def run_from_args(args: argparse.Namespace) -> int:
 
     config = build(DiagnoseConfig, args, FLAGS)
     config.validate()
+    if config.model.startswith(ENSEMBLE_PREFIX):
+        members = ModelSpec.parse(config.model).members
+        raise ValueError(
+            f"model {config.model!r}: an ensemble is not diagnosed as one model; diagnose each "
+            f"member on its own ({', '.join(f'--model {m.text}' for m in members)})"
+        )
     out = report_path(args.out or default_out(config.model, diagnose_env(config)[0]))
     partial = diagnosis_partial_path(out)
     report = diagnose_model(config, partial=partial)

@@ -43,8 +43,8 @@ FrameClassifier = Callable[[Tensor], Tensor]
 #: ``distance(images (M, C, H, W), goals (M, C, H, W)) -> distances (M,)`` (e.g. LPIPS).
 PerceptualDistance = Callable[[Tensor, Tensor], Tensor]
 
-#: Ensemble disagreement weight λ of SPEC §5.
-ENSEMBLE_DISAGREEMENT_WEIGHT = 0.01
+#: Ensemble disagreement weight λ of SPEC §5 (:data:`vp2.spec.ENSEMBLE_DISAGREEMENT_WEIGHT`).
+ENSEMBLE_DISAGREEMENT_WEIGHT = spec.ENSEMBLE_DISAGREEMENT_WEIGHT
 
 #: Values per block of the CPU pixel error (about 4 MB of float32, a cache-sized block).
 _CPU_BLOCK_VALUES = 1 << 20
@@ -339,6 +339,9 @@ class EnsembleCost:
         generator: Source of the member choice.
         lam: Disagreement weight ``λ``.
         per_sample: See :func:`choose_members`.
+
+    Attributes:
+        last_members: ``(N,)`` the members drawn by the last call (``None`` before any).
     """
 
     def __init__(
@@ -352,6 +355,7 @@ class EnsembleCost:
         self.generator = generator
         self.lam = lam
         self.per_sample = per_sample
+        self.last_members: Tensor | None = None
 
     def __call__(self, predictions: Tensor) -> Tensor:
         """Args: predictions ``(M, N, T, C, H, W)``. Returns ``(N,)`` costs."""
@@ -359,6 +363,7 @@ class EnsembleCost:
         num_members, num_samples = predictions.shape[:2]
         members = choose_members(num_members, num_samples, self.generator, self.per_sample)
         members = members.to(predictions.device)
+        self.last_members = members
         chosen = predictions[members, torch.arange(num_samples, device=predictions.device)]
         return self.term(chosen) + self.lam * penalty  # (N,)
 

@@ -20,6 +20,7 @@ from typing import Any
 from vp2 import spec
 from vp2.envs import ENV_TASKS, split_name
 from vp2.planning.config import PlannerConfig
+from vp2.run.model_spec import ENSEMBLE_PREFIX
 from vp2.utils.executors.base import EXECUTORS
 from vp2.utils.seeds import check_seed
 
@@ -65,8 +66,9 @@ class RunConfig:
 
     Attributes:
         model: Model spec (``--model``): ``simulator``, ``repeat_last_frame``,
-            ``NAME:CHECKPOINT``, ``package.module:factory`` or a YAML file
-            (:mod:`vp2.run.model_spec`). Ignored by ``agent="random"``.
+            ``NAME:CHECKPOINT``, ``zoo:NAME``, ``package.module:factory``, a YAML file or
+            ``ensemble(SPEC,SPEC,...)`` (:mod:`vp2.run.model_spec`). Ignored by
+            ``agent="random"``.
         out: Run directory (``--out``).
         model_args: Keyword arguments of the model factory (``--model-arg KEY=VALUE``,
             repeatable; values parsed as YAML, see
@@ -85,8 +87,10 @@ class RunConfig:
             samples per step, ``--num-samples``; ``None``: SPEC, 200, 800 for
             open_slide/open_drawer; other values are for tests and ablations), ``gamma``
             (MPPI inverse temperature, ``--gamma``), ``num_iterations`` (iterations per step,
-            ``--num-iterations``; ``None``: the optimizer's default); ``sigma`` and
-            ``options`` have no flag.
+            ``--num-iterations``; ``None``: the optimizer's default), the settings only some
+            optimizers read (``num_elites``, ``num_samples_first``, ``num_refined``, ``lr``,
+            ``grad_steps``: ``--num-elites`` ...; ``None``: the optimizer's default; one its
+            optimizer does not read is refused); ``sigma`` and ``options`` have no flag.
         cost: ``auto`` | ``spec`` | ``pixel_only`` (``--cost``), see
             :data:`vp2.planning.planner.CostMode`.
         num_steps: Control steps per trial (``--num-steps``); SPEC: 15. Fewer only for tests.
@@ -276,10 +280,18 @@ class RunConfig:
                 out.append(
                     f"num_iterations={planner.num_iterations} (SPEC: {spec.NUM_ITERATIONS})"
                 )
+            for name, value in planner.optimizer_fields().items():
+                out.append(f"{name}={value} (SPEC: none, {planner.optimizer}'s default)")
             if planner.sigma is not None:
                 out.append(f"sigma={list(planner.sigma)} (SPEC: the environment's, vp2.spec.SIGMA)")
             if planner.options:
                 out.append(f"optimizer options {planner.options} (SPEC: none)")
+            if self.model.startswith(ENSEMBLE_PREFIX):
+                out.append(
+                    f"model {self.model} is an ensemble, planned with the ensemble cost (a random "
+                    f"member's score - {spec.ENSEMBLE_DISAGREEMENT_WEIGHT} x the members' "
+                    "disagreement; SPEC: one model)"
+                )
             if self.cost == "pixel_only":
                 out.append("cost=pixel_only (SPEC: RoboDesk uses its success classifier)")
         if len(self.seeds) < spec.MIN_SEEDS:

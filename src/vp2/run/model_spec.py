@@ -12,7 +12,11 @@ A model spec is one of
 * a ``.yaml``/``.yml`` file whose mapping has a ``_target_`` (``package.module:factory`` or
   ``package.module.factory``) and the factory's keyword arguments; nested mappings with their
   own ``_target_`` are built first (as Hydra's ``instantiate``). Run arguments override the
-  file's.
+  file's;
+* ``ensemble(SPEC,SPEC,...)``: two or more of the forms above (not the simulator, not another
+  ensemble), comma-separated, planned with the ensemble cost of SPEC §5
+  (:class:`vp2.models.ensemble.EnsembleModel`); every member gets the run's model arguments.
+  No other form holds a ``(``, so it cannot be read as one of them.
 
 A factory may also declare any of the parameters ``env`` (``"robodesk"``/``"tabletop"``),
 ``action_dim`` and ``device``; the runner fills those it does not get explicitly, so one spec
@@ -141,26 +145,29 @@ def read_yaml_spec(path: str | Path) -> dict[str, Any]:
 
 #: ``package.module:factory`` (``factory`` may be dotted: a class attribute).
 _FACTORY = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
-SpecKind = Literal["builtin", "checkpoint", "zoo", "factory", "yaml"]
+SpecKind = Literal["builtin", "checkpoint", "zoo", "factory", "yaml", "ensemble"]
 #: The prefix of a zoo entry (``vp2.models.zoo.ZOO_PREFIX``; kept here so that reading a spec
 #: without a colon imports no torch).
 ZOO_PREFIX = "zoo:"
+#: How an ensemble spec begins: ``ensemble(SPEC,SPEC,...)``.
+ENSEMBLE_PREFIX = "ensemble("
 
 
 @dataclasses.dataclass(frozen=True)
 class ModelSpec:
-    """A ``--model`` string, parsed once (:meth:`parse`): which of the five forms it is and
+    """A ``--model`` string, parsed once (:meth:`parse`): which of the six forms it is and
     what it names.
 
     Attributes:
         text: The string as given (what result records and messages show).
         kind: ``builtin``, ``checkpoint`` (``NAME:CHECKPOINT``), ``zoo`` (``zoo:NAME``),
-            ``factory`` (``package.module:factory``) or ``yaml``.
+            ``factory`` (``package.module:factory``), ``yaml`` or ``ensemble``.
         target: The factory to call, ``package.module:factory`` (``builtin``, ``factory``).
         path: The model file (``yaml``) or the checkpoint file or run directory
             (``checkpoint``, ``zoo``).
         checkpoint: The registered model and its checkpoint (``checkpoint``, ``zoo``).
         zoo: The zoo entry's card (``zoo``).
+        members: The members' specs (``ensemble``).
     """
 
     text: str
@@ -169,6 +176,7 @@ class ModelSpec:
     path: Path | None = None
     checkpoint: CheckpointSpec | None = None
     zoo: ZooCard | None = dataclasses.field(default=None, compare=False)
+    members: tuple[ModelSpec, ...] = ()
 
     def __str__(self) -> str:
         return self.text
@@ -176,17 +184,20 @@ class ModelSpec:
     @classmethod
     def parse(cls, text: str) -> ModelSpec:
         """The spec a string is: a built-in name, else a ``.yaml``/``.yml`` file, else
-        ``zoo:NAME`` (its card is read), else ``NAME:CHECKPOINT`` if the part before the first
-        colon is a registered model (both import the models, and torch), else
-        ``package.module:factory``. Reads no other file.
+        ``ensemble(...)`` (each member parsed), else ``zoo:NAME`` (its card is read), else
+        ``NAME:CHECKPOINT`` if the part before the first colon is a registered model (both
+        import the models, and torch), else ``package.module:factory``. Reads no other file.
 
         Raises:
-            PluginError: none of these forms, or a zoo name the zoo does not have.
+            PluginError: none of these forms, or a zoo name the zoo does not have (for an
+                ensemble: naming the member).
         """
         if text in BUILTIN_MODELS:
             return cls(text, "builtin", target=BUILTIN_MODELS[text])
         if text.endswith((".yaml", ".yml")):
             return cls(text, "yaml", path=Path(text))
+        if text.startswith(ENSEMBLE_PREFIX):
+            return cls._ensemble(text)
         if text.startswith(ZOO_PREFIX):
             return cls._zoo(text)
         names = "NAME:CHECKPOINT"
@@ -204,8 +215,31 @@ class ModelSpec:
             names = f"NAME:CHECKPOINT (NAME: {', '.join(model_names())})"
         raise PluginError(
             f"model {text!r}: expected a built-in name ({', '.join(BUILTIN_MODELS)}), "
-            f"{names}, zoo:NAME, package.module:factory or a .yaml file"
+            f"{names}, zoo:NAME, package.module:factory, a .yaml file or ensemble(SPEC,SPEC,...)"
         )
+
+    @classmethod
+    def _ensemble(cls, text: str) -> ModelSpec:
+        """``ensemble(SPEC,SPEC,...)``: each member parsed (not yet checked)."""
+        usage = "an ensemble is ensemble(SPEC,SPEC,...), e.g. ensemble(zoo:a,zoo:b)"
+        if not text.endswith(")"):
+            raise PluginError(f"model {text!r}: no closing ')'; {usage}")
+        names = [name.strip() for name in text[len(ENSEMBLE_PREFIX) : -1].split(",")]
+        if len(names) < 2 or not all(names):
+            problem = f"member {names.index('') + 1} is empty" if not all(names) else "1 member"
+            raise PluginError(f"model {text!r}: {problem}; {usage}")
+        members = []
+        for i, name in enumerate(names, 1):
+            if name.startswith(ENSEMBLE_PREFIX) or BUILTIN_MODELS.get(name) == BUILTIN_MODELS[
+                "simulator"
+            ]:
+                raise PluginError(f"ensemble member {i} of {text!r}, {name!r}: an ensemble member "
+                                  "predicts from frames (not the simulator, not an ensemble)")
+            try:
+                members.append(cls.parse(name))
+            except PluginError as err:
+                raise PluginError(f"ensemble member {i} of {text!r}: {err}") from None
+        return cls(text, "ensemble", members=tuple(members))
 
     @classmethod
     def _zoo(cls, text: str) -> ModelSpec:
@@ -239,11 +273,27 @@ class ModelSpec:
         """Resolves the spec without building the model (fails fast, before any trial): imports
         the factory, reads the YAML file, or reads the checkpoint (``weights_only``, on the CPU)
         and checks it holds the named model (a zoo entry's: after checking it against its card).
+        An ensemble checks every member, then that its checkpoints agree on the environment
+        and the interface sizes (:func:`vp2.models.ensemble.check_checkpoints_agree`).
 
         Raises:
-            PluginError: naming the spec and what is wrong, in one line.
+            PluginError: naming the spec (an ensemble's member) and what is wrong, in one line.
         """
-        if self.kind == "yaml":
+        if self.kind == "ensemble":
+            from vp2.models.ensemble import EnsembleMismatch, check_checkpoints_agree
+
+            for i, member in enumerate(self.members, 1):
+                try:
+                    member.check()
+                except PluginError as err:
+                    raise PluginError(f"ensemble member {i} of {self.text!r}: {err}") from None
+            try:
+                check_checkpoints_agree(
+                    [(m.text, m.checkpoint.path) for m in self.members if m.checkpoint]
+                )
+            except EnsembleMismatch as err:
+                raise PluginError(f"model {self.text!r}: {err}") from None
+        elif self.kind == "yaml":
             resolve_target(str(read_yaml_spec(self.text)["_target_"]))
         elif self.checkpoint is not None:
             self.verify()
@@ -356,12 +406,22 @@ def resolve_model(
     Raises:
         PluginError: the spec cannot be resolved.
         TypeError: (``check``) the object lacks a required attribute of the interface.
+        EnsembleMismatch: (an ensemble) members that differ in their interface sizes.
     """
     import torch
 
     from vp2.models.contract import checked
 
     parsed = _parsed(spec)
+    if parsed.kind == "ensemble":
+        from vp2.models.ensemble import EnsembleModel
+
+        members = [
+            resolve_model(m, args, env=env, action_dim=action_dim, device=device)
+            for m in parsed.members
+        ]
+        ensemble = EnsembleModel(members, labels=[m.text for m in parsed.members])
+        return checked(ensemble) if check else ensemble
     if parsed.checkpoint is not None:
         parsed.verify()
         # Model arguments of a checkpoint override inference settings of its config
@@ -405,6 +465,11 @@ def model_identity(
     if card is not None:
         identity["zoo"] = {"name": card.name, "family": card.family, "preset": card.preset,
                            "sha256": card.sha256}
+    members = _parsed(spec).members
+    if members:  # an ensemble: each member's identity, in the spec's order
+        identity["ensemble"] = [
+            model_identity(m, args, built) for m, built in zip(members, model.members, strict=True)
+        ]
     return identity
 
 

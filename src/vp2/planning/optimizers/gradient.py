@@ -59,6 +59,14 @@ class CEMGD(CEM):
         sampler: CEM noise process; defaults to :class:`CorrelatedNoiseSampler`.
     """
 
+    config_fields = {
+        "num_elites": "num_elites",
+        "num_samples_first": "num_samples_first",
+        "num_refined": "num_refined",
+        "lr": "lr",
+        "grad_steps": "max_steps",
+    }
+
     def __init__(
         self,
         sigma: Sequence[float] | Tensor,
@@ -79,6 +87,8 @@ class CEMGD(CEM):
             raise ValueError("num_samples_first and num_refined must be >= 1")
         if not 0 < shrink < 1:
             raise ValueError(f"shrink must be in (0, 1), got {shrink}")
+        if not lr > 0 or max_steps < 1:
+            raise ValueError(f"lr must be > 0 and max_steps >= 1, got {lr} and {max_steps}")
         super().__init__(sigma, num_samples, num_iterations, num_elites, sampler)
         self.num_samples_first = num_samples_first
         self.num_refined = num_refined
@@ -222,6 +232,8 @@ class LBFGS(Optimizer):
         boundary_eps: How far inside ``[-1, 1]`` the initial mean is pulled.
     """
 
+    config_fields = {"lr": "lr", "grad_steps": "num_steps"}
+
     def __init__(
         self,
         lr: float = 5e-2,
@@ -234,7 +246,9 @@ class LBFGS(Optimizer):
         boundary_eps: float = 1e-3,
     ) -> None:
         if num_steps < 1:
-            raise ValueError("num_steps must be >= 1")
+            raise ValueError(f"num_steps must be >= 1, got {num_steps}")
+        if not lr > 0:
+            raise ValueError(f"lr must be > 0, got {lr}")
         self.lr = lr
         self.num_steps = num_steps
         self.max_iter = max_iter
