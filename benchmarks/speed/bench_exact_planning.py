@@ -39,7 +39,8 @@ from vp2.spec import SIGMA
 
 
 def _old_normal(shape, generator, like):
-    return torch.randn(tuple(shape), generator=generator, dtype=like.dtype).to(like.device)
+    return torch.randn(tuple(shape), generator=generator, device=generator.device,
+                       dtype=like.dtype).to(like.device)
 
 
 def _old_pixel_sse(frames, goal):
@@ -99,18 +100,21 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=7)
     p.add_argument("--oracle-samples", type=int, default=20)
     p.add_argument("--oracle-repeats", type=int, default=3)
+    p.add_argument("--device", default="cpu", help="where frames, costs and the classifier "
+                   "live (the oracle step always runs on the CPU; 0 oracle samples skip it)")
     args = p.parse_args()
     torch.set_num_threads(1)
+    dev = torch.device(args.device)
     g = torch.Generator().manual_seed(0)
     n, h, a = 200, 10, 5
-    mean = torch.zeros(h, a)
+    mean = torch.zeros(h, a, device=dev)
     sampler = samplers.CorrelatedNoiseSampler()
     std = samplers.broadcast_std(torch.tensor(SIGMA["robodesk"]), mean)
-    frames = (torch.rand(n, h, 3, 64, 64, generator=g) * 255).round() / 255
+    frames = ((torch.rand(n, h, 3, 64, 64, generator=g) * 255).round() / 255).to(dev)
     goal = frames[0, 0]
-    scores = -torch.rand(n, generator=g) * 1e3
-    acts = torch.rand(n, h, a, generator=g)
-    clf = load_classifier(shipped_path("push_red"))
+    scores = (-torch.rand(n, generator=g) * 1e3).to(dev)
+    acts = torch.rand(n, h, a, generator=g).to(dev)
+    clf = load_classifier(shipped_path("push_red"), dev)
     flat = frames.flatten(0, 1)
     cost = robodesk_cost(goal, clf)
     planner = MPPI(SIGMA["robodesk"], num_samples=n)
@@ -145,10 +149,13 @@ def main() -> None:
                 with ctx:
                     start = time.perf_counter()
                     call()
+                    if dev.type == "cuda":
+                        torch.cuda.synchronize(dev)
                     times.setdefault((name, label), []).append(time.perf_counter() - start)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"torch {torch.__version__}, ATen {torch.backends.cpu.get_cpu_capability()}, "
-          f"1 thread, load {os.getloadavg()[0]:.1f}")
+          f"1 thread, load {os.getloadavg()[0]:.1f}, device {dev}"
+          + (f" ({torch.cuda.get_device_name(dev)})" if dev.type == "cuda" else ""))
     print("| step | before ms | after ms | after / before |\n|---|---|---|---|")
     for name, _ in jobs:
         b = statistics.median(times[(name, "before")]) * 1e3
