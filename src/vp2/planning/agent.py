@@ -216,8 +216,12 @@ class PlanningAgent:
         self.optimizer = build_optimizer(task, self.planner)
         self.optimizer.reset()
         goal = frames_to_tensor(goal_image, self.device)  # (3, H, W)
+        # The oracle's plans must be the same bits on every CPU (its tables are measured once
+        # and replayed anywhere), so its classifier runs the exact arithmetic; a learned model's
+        # predictions already differ per CPU and keep the faster float32 inference.
+        exact = bool(getattr(self.model, "needs_simulator_state", False))
         self.cost, self.cost_kind = build_cost(
-            task, goal, self.cost_mode, self.classifiers, self.device
+            task, goal, self.cost_mode, self.classifiers, self.device, exact=exact
         )
         # The classifier's provenance and its weight in the cost (one weight per task,
         # SPEC §6), so that a record (and an oracle table built from records) names both.
