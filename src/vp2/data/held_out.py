@@ -20,10 +20,12 @@ whole one with ``vp2 train`` and make ``vp2 collect ENV`` refuse the directory.
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import json
 import logging
 import os
+import sys
 from pathlib import Path
 
 import vp2
@@ -75,6 +77,16 @@ def is_complete(root: Path) -> bool:
 def rendering_problem() -> str | None:
     """Why MuJoCo cannot render here (a one-line reason), or ``None`` when it can: renders an
     8x8 frame of a one-geom scene with the configured backend (``MUJOCO_GL``)."""
+    # A renderer that failed half-built complains again when collected; say it once, here.
+    hook, sys.unraisablehook = sys.unraisablehook, lambda _: None
+    try:
+        return _render_probe()
+    finally:
+        gc.collect()
+        sys.unraisablehook = hook
+
+
+def _render_probe() -> str | None:
     try:
         import mujoco
 
