@@ -305,16 +305,17 @@ def diagnose_model(config: DiagnoseConfig, partial: str | Path | None = None) ->
             "simulator", {}, env=env, action_dim=int(env_class(env).action_dim), device=device
         )
     timing: dict[str, float] = {"model_s": round(time.perf_counter() - start, 2)}
-    if wants_clips and data is None and not state_model and saved.conditioning is None:
-        from vp2.data.held_out import held_out_dataset
-
-        t0 = time.perf_counter()
-        data = held_out_dataset(env, progress=config.progress)
-        timing["held_out_s"] = round(time.perf_counter() - t0, 2)
-    calls = 2 * config.sampling_seeds if wants_clips and not state_model else 0
-    bar = tqdm(total=calls + len(instances), unit="step", desc="vp2 diagnose",
-               disable=not config.progress)
+    bar = None
     try:
+        if wants_clips and data is None and not state_model and saved.conditioning is None:
+            from vp2.data.held_out import held_out_dataset
+
+            t0 = time.perf_counter()
+            data = held_out_dataset(env, progress=config.progress)
+            timing["held_out_s"] = round(time.perf_counter() - t0, 2)
+        calls = 2 * config.sampling_seeds if wants_clips and not state_model else 0
+        bar = tqdm(total=calls + len(instances), unit="step", desc="vp2 diagnose",
+                   disable=not config.progress)
         t0 = time.perf_counter()
         if not config.clips:
             conditioning: dict[str, Any] = {"skipped": "--clips 0"}
@@ -348,7 +349,8 @@ def diagnose_model(config: DiagnoseConfig, partial: str | Path | None = None) ->
         if saved.resumed:
             timing["resumed"] = saved.resumed
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
         for used in (model, simulator):
             close = getattr(used, "close", None)
             if callable(close):
