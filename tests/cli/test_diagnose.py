@@ -81,10 +81,11 @@ def test_default_report_path_and_missing_dataset(tmp_path, monkeypatch, capsys):
     from tests.benchmark import tiny_suite_path
 
     monkeypatch.chdir(tmp_path)
-    code = cli.main(["diagnose", "--model", "repeat_last_frame", "--env", "tabletop"])
+    code = cli.main(["diagnose", "--model", "repeat_last_frame", "--env", "tabletop",
+                     "--data", "data/tabletop-100x-64px"])
     assert code == 2
     err = capsys.readouterr().err
-    assert "no dataset at data/tabletop-100x-64px" in err and "`vp2 collect tabletop`" in err
+    assert "no dataset at data/tabletop-100x-64px" in err and "`vp2 collect tabletop --out" in err
     code = cli.main(["diagnose", "--model", "repeat_last_frame", "--env", "tabletop",
                      "--clips", "0", "--instances-per-task", "1", "--num-samples", "4",
                      "--suite", str(tiny_suite_path()), "--no-progress"])

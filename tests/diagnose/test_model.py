@@ -249,8 +249,10 @@ def test_repeat_last_frame_report(data, suite, tmp_path):
 
 def test_missing_dataset_names_how_to_make_it(suite, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(FileNotFoundError, match="`vp2 collect tabletop` creates it"):
-        diagnose_model(DiagnoseConfig(model="repeat_last_frame", env="tabletop"))
+    # A missing --data is an error; a missing default dataset is collected
+    # (tests/diagnose/test_held_out.py).
+    with pytest.raises(FileNotFoundError, match="create it with `vp2 collect tabletop --out d`"):
+        diagnose_model(DiagnoseConfig(model="repeat_last_frame", env="tabletop", data="d"))
     # Without the conditioning measure no dataset is needed.
     report = _diagnose("repeat_last_frame", None, suite, clips=0, instances_per_task=1)
     assert report["verdicts"]["action_conditioning"]["status"] == "skipped"

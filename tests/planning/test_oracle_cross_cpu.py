@@ -50,7 +50,7 @@ _SCRIPT = textwrap.dedent(
     f"""
     import json
     import torch
-    from vp2.benchmark.trial import ControlTrial
+    from vp2.run.trial import ControlTrial
     from vp2.data.suite import TaskSuite
     from vp2.envs import TABLETOP_TASKS, env_class
     from vp2.models.simulator import SimulatorModel

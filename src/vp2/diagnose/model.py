@@ -14,8 +14,10 @@ Four measurements (:mod:`vp2.diagnose.measures`), each with a verdict from fixed
 thresholds (:mod:`vp2.diagnose.verdicts`; ``docs/diagnose.md``):
 
 1. **action conditioning** on held-out clips of the environment's default dataset (the one
-   ``vp2 collect ENV`` writes, as ``vp2 metrics`` reads it): mean error with the clips' true
-   actions and with another clip's, their ratio shuffled / true and its 95% bootstrap interval;
+   ``vp2 collect ENV`` writes, as ``vp2 metrics`` reads it; where it is absent, its
+   validation trajectories alone, collected once into the cache, :mod:`vp2.data.held_out`):
+   mean error with the clips' true actions and with another clip's, their ratio shuffled /
+   true and its 95% bootstrap interval;
 2. at the first planning step of the first ``instances_per_task`` suite instances of every task
    (the candidates the trial of ``seed`` draws there, at ``num_samples``): the **scripted
    plan's rank** among the candidates under the model and the task's cost;
@@ -188,22 +190,24 @@ def needs_frames(parsed: ModelSpec) -> bool:
     return not (parsed.kind == "builtin" and parsed.target == BUILTIN_MODELS["simulator"])
 
 
-def require_dataset(data: str | Path | None, env: str) -> Path:
-    """The dataset of the held-out clips: ``data``, or the environment's default one.
+def require_dataset(data: str | Path | None, env: str) -> Path | None:
+    """The dataset of the held-out clips: ``data``, or the environment's default one;
+    ``None`` where no ``data`` is given and the default dataset is absent: the diagnosis then
+    collects the default dataset's validation trajectories itself
+    (:func:`vp2.data.held_out.held_out_dataset`).
 
     Raises:
-        FileNotFoundError: no dataset there, naming how to make it.
+        FileNotFoundError: no dataset at ``data``, naming how to make it.
     """
-    path = Path(data) if data is not None else default_dataset(env)
+    if data is None:
+        path = default_dataset(env)
+        return path if (path / MANIFEST).is_file() else None
+    path = Path(data)
     if not (path / MANIFEST).is_file():
-        how = (
-            f"`vp2 collect {env}` creates it, or pass --data DIR"
-            if data is None
-            else f"create it with `vp2 collect {env} --out {path}`"
-        )
         raise FileNotFoundError(
-            f"no dataset at {path} ({MANIFEST} missing); {how} (or --clips 0 to skip the "
-            "action-conditioning measure)"
+            f"no dataset at {path} ({MANIFEST} missing); create it with `vp2 collect {env} "
+            f"--out {path}`, or leave out --data to use the default dataset (or --clips 0 to "
+            "skip the action-conditioning measure)"
         )
     return path
 
@@ -259,7 +263,9 @@ def diagnose_model(config: DiagnoseConfig, partial: str | Path | None = None) ->
     Raises:
         ValueError: an invalid config, a spec that cannot be resolved, or clips that do not fit
             the model.
-        FileNotFoundError: no dataset for the conditioning measure (see :func:`require_dataset`).
+        FileNotFoundError: no dataset at ``config.data`` (see :func:`require_dataset`).
+        vp2.data.storage.DatasetError: the default dataset is absent and its held-out
+            trajectories cannot be collected here (no rendering).
     """
     import torch
     from tqdm.auto import tqdm
@@ -272,7 +278,8 @@ def diagnose_model(config: DiagnoseConfig, partial: str | Path | None = None) ->
     parsed = ModelSpec.parse(config.model)
     parsed.check()
     env, env_source = diagnose_env(config)
-    data = require_dataset(config.data, env) if config.clips and needs_frames(parsed) else None
+    wants_clips = bool(config.clips) and needs_frames(parsed)
+    data = require_dataset(config.data, env) if wants_clips else None
     instances = []
     if config.instances_per_task:
         instances = TaskSuite.load(config.suite).select([env], config.instances_per_task)
@@ -292,12 +299,18 @@ def diagnose_model(config: DiagnoseConfig, partial: str | Path | None = None) ->
         simulator = resolve_model(
             "simulator", {}, env=env, action_dim=int(env_class(env).action_dim), device=device
         )
-    model_s = time.perf_counter() - start
-    calls = 2 * config.sampling_seeds if data is not None and not state_model else 0
-    bar = tqdm(total=calls + len(instances), unit="step", desc="vp2 diagnose",
-               disable=not config.progress)
-    timing: dict[str, float] = {"model_s": round(model_s, 2)}
+    timing: dict[str, float] = {"model_s": round(time.perf_counter() - start, 2)}
+    bar = None
     try:
+        if wants_clips and data is None and not state_model and saved.conditioning is None:
+            from vp2.data.held_out import held_out_dataset
+
+            t0 = time.perf_counter()
+            data = held_out_dataset(env, progress=config.progress)
+            timing["held_out_s"] = round(time.perf_counter() - t0, 2)
+        calls = 2 * config.sampling_seeds if wants_clips and not state_model else 0
+        bar = tqdm(total=calls + len(instances), unit="step", desc="vp2 diagnose",
+                   disable=not config.progress)
         t0 = time.perf_counter()
         if not config.clips:
             conditioning: dict[str, Any] = {"skipped": "--clips 0"}
@@ -331,7 +344,8 @@ def diagnose_model(config: DiagnoseConfig, partial: str | Path | None = None) ->
         if saved.resumed:
             timing["resumed"] = saved.resumed
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
         for used in (model, simulator):
             close = getattr(used, "close", None)
             if callable(close):
