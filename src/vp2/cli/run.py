@@ -53,25 +53,16 @@ FLAGS: dict[str, Flag | None] = {
     "planner.num_iterations": Flag(
         help="planner iterations per step (default: the optimizer's: mppi 1, cem and cem_gd 3)"
     ),
-    "planner.num_elites": Flag(
-        group=PLANNER_GROUP, help="cem, cem_gd: samples the distribution is refitted to "
-        "(default 10)"
-    ),
-    "planner.num_samples_first": Flag(
-        group=PLANNER_GROUP, help="cem_gd: samples per CEM iteration on a trial's first "
-        "planning step (default 500; --num-samples sets the later steps', default 50)"
-    ),
-    "planner.num_refined": Flag(
-        group=PLANNER_GROUP, help="cem_gd: best CEM samples refined by gradient steps (default 1)"
-    ),
-    "planner.lr": Flag(
-        group=PLANNER_GROUP, help="cem_gd: Adam step size of the refinement (default 0.01); "
-        "lbfgs: step length (default 0.05; the paper tuned 0.001, 0.01, 0.05, 0.07)"
-    ),
-    "planner.grad_steps": Flag(
-        group=PLANNER_GROUP, help="cem_gd: most accepted gradient steps per refined sequence "
-        "(default 15); lbfgs: LBFGS.step calls per planning step (default 100)"
-    ),
+    **{f"planner.{field}": Flag(group=PLANNER_GROUP, help=text) for field, text in {
+        "num_elites": "cem, cem_gd: samples the distribution is refitted to (default 10)",
+        "num_samples_first": "cem_gd: samples per CEM iteration on a trial's first planning step "
+                             "(default 500; --num-samples sets the later steps', default 50)",
+        "num_refined": "cem_gd: best CEM samples refined by gradient steps (default 1)",
+        "lr": "cem_gd: Adam step size of the refinement (default 0.01); lbfgs: step length "
+              "(default 0.05; the paper tuned 0.001, 0.01, 0.05, 0.07)",
+        "grad_steps": "cem_gd: most accepted gradient steps per refined sequence (default 15); "
+                      "lbfgs: LBFGS.step calls per planning step (default 100)",
+    }.items()},
     "planner.sigma": NOT_A_FLAG,
     "planner.options": NOT_A_FLAG,
     "cost": Flag(choices=["auto", "spec", "pixel_only"]),

@@ -88,40 +88,26 @@ class EnsembleModel:
             if hasattr(member, "num_workers"):
                 member.num_workers = value
 
-    def predict_members(
-        self,
-        context_frames: Tensor,
-        actions: Tensor,
-        *,
-        generator: torch.Generator | None = None,
-        grad: bool | None = None,
-    ) -> Tensor:
+    def predict_members(self, context_frames: Tensor, actions: Tensor, **options: Any) -> Tensor:
         """Every member's prediction, member by member (each in chunks of its
-        ``max_batch_size``; stochastic members draw from ``generator`` in turn).
+        ``max_batch_size``; stochastic members draw from ``options["generator"]`` in turn).
 
         Args:
             context_frames: ``(N, num_context, 3, H, W)`` in [0, 1].
             actions: ``(N, num_context + num_future - 1, A)`` in [-1, 1].
+            options: ``generator`` and ``grad``, as :meth:`predict` takes them.
 
         Returns:
             ``(M, N, num_future, 3, H, W)``.
         """
-        return torch.stack([
-            predict_in_chunks(m, context_frames, actions, generator=generator, grad=grad)
-            for m in self.members
-        ])
+        return torch.stack(
+            [predict_in_chunks(m, context_frames, actions, **options) for m in self.members])
 
-    def predict(
-        self,
-        context_frames: Tensor,
-        actions: Tensor,
-        *,
-        generator: torch.Generator | None = None,
-        grad: bool | None = None,
-    ) -> Tensor:
+    def predict(self, context_frames: Tensor, actions: Tensor, *,
+                generator: torch.Generator | None = None, grad: bool | None = None) -> Tensor:
         """The members' mean prediction ``(N, num_future, 3, H, W)``."""
-        members = self.predict_members(context_frames, actions, generator=generator, grad=grad)
-        return members.mean(dim=0)
+        return self.predict_members(context_frames, actions, generator=generator,
+                                    grad=grad).mean(dim=0)
 
     def gradient_problem(self, device: str | torch.device = "cpu") -> str | None:
         """Why some member cannot give gradients of its predictions with respect to the

@@ -17,8 +17,7 @@ the package does not load the others (or torch).
 See ``docs/evaluation.md``.
 """
 
-import importlib
-from typing import Any
+from vp2.utils.lazy import lazy_exports
 
 #: Where the names of the package live (imported on first use).
 _LAZY_MODULES: dict[str, list[str]] = {
@@ -30,17 +29,4 @@ _LAZY_MODULES: dict[str, list[str]] = {
     ],
     "vp2.oracle.tables": ["OracleMatch", "OracleTable", "OracleTask", "match_tables"],
 }
-_LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(_LAZY[name]), name)
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_LAZY])
-
-
-__all__ = sorted(_LAZY)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _LAZY_MODULES)

@@ -158,16 +158,13 @@ class ClassifierCost:
     def __init__(
         self, classifier: FrameClassifier, max_batch_size: int | None = None, exact: bool = False
     ) -> None:
-        self.classifier = classifier
-        self.max_batch_size = max_batch_size
-        self.exact = exact
+        self.classifier, self.max_batch_size, self.exact = classifier, max_batch_size, exact
 
     def __call__(self, frames: Tensor) -> Tensor:
         _check_frames(frames)
         fn = getattr(self.classifier, "exact_logits", self.classifier) if self.exact else (
             self.classifier)
-        logits = _per_frame(fn, frames, max_batch_size=self.max_batch_size)
-        return classifier_cost(logits)  # (N,)
+        return classifier_cost(_per_frame(fn, frames, max_batch_size=self.max_batch_size))  # (N,)
 
 
 class PerceptualCost:
