@@ -15,7 +15,6 @@ previous arithmetic, patched back in for the measurement (``legacy``): ``torch.r
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import os
 import platform
@@ -30,6 +29,7 @@ import vp2.planning.agent as agent_mod
 import vp2.planning.costs as costs
 import vp2.planning.optimizers.mppi as mppi
 import vp2.planning.samplers as samplers
+from benchmarks.common import argument_parser
 from vp2.classifiers.checkpoint import load_classifier
 from vp2.classifiers.registry import shipped_path
 from vp2.data.suite import TaskSuite
@@ -96,7 +96,7 @@ def _oracle_step(samples: int) -> Callable[[], object]:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argument_parser(__spec__.name, __doc__)
     p.add_argument("--repeats", type=int, default=7)
     p.add_argument("--oracle-samples", type=int, default=20)
     p.add_argument("--oracle-repeats", type=int, default=3)
