@@ -15,6 +15,7 @@ import re
 from pathlib import Path
 
 import pytest
+from benchmarks.checks.architecture_figures import strongly_connected
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = SRC / "vp2"
@@ -113,39 +114,7 @@ def test_no_backward_imports():
 
 
 def test_no_import_cycles():
-    g = graph()
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on_stack: set[str] = set()
-    cycles: list[list[str]] = []
-    counter = [0]
-
-    def visit(v: str) -> None:  # Tarjan's strongly connected components
-        index[v] = low[v] = counter[0]
-        counter[0] += 1
-        stack.append(v)
-        on_stack.add(v)
-        for w in g.get(v, ()):
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on_stack:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            component = []
-            while True:
-                w = stack.pop()
-                on_stack.discard(w)
-                component.append(w)
-                if w == v:
-                    break
-            if len(component) > 1:
-                cycles.append(sorted(component))
-
-    for v in sorted(g):
-        if v not in index:
-            visit(v)
+    cycles = strongly_connected(graph())
     assert not cycles, "import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
 
 

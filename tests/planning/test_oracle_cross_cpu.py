@@ -12,15 +12,13 @@ tabletop trial in a fresh process; the executed actions must equal the machine's
 
 from __future__ import annotations
 
-import json
 import os
-import subprocess
-import sys
 import textwrap
 
 import pytest
 
-_NO_AVX512 = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL"
+from tests.cpu_variants import NO_AVX512, run_under
+
 VARIANTS = {
     "own": {},
     # An AVX2 machine (a Zen 2/3 or a Haswell) as far as every library can be told.
@@ -29,7 +27,7 @@ VARIANTS = {
         "ONEDNN_MAX_CPU_ISA": "AVX2",
         "MKL_ENABLE_INSTRUCTIONS": "AVX2",
         "OPENBLAS_CORETYPE": "Haswell",
-        "NPY_DISABLE_CPU_FEATURES": _NO_AVX512,
+        "NPY_DISABLE_CPU_FEATURES": NO_AVX512,
         "NUMBA_CPU_NAME": "haswell",
         "GALLIUM_OVERRIDE_CPU_CAPS": "avx",
     },
@@ -39,7 +37,7 @@ VARIANTS = {
         "ONEDNN_MAX_CPU_ISA": "SSE41",
         "MKL_ENABLE_INSTRUCTIONS": "SSE4_2",
         "OPENBLAS_CORETYPE": "Nehalem",
-        "NPY_DISABLE_CPU_FEATURES": f"AVX AVX2 FMA3 F16C {_NO_AVX512}",
+        "NPY_DISABLE_CPU_FEATURES": f"AVX AVX2 FMA3 F16C {NO_AVX512}",
         "NUMBA_CPU_NAME": "generic",
     },
 }
@@ -69,19 +67,11 @@ _SCRIPT = textwrap.dedent(
 )
 
 
-def _trials(env_overrides: dict[str, str], cache: str) -> dict:
-    env = {**os.environ, **env_overrides, "VP2_CACHE_DIR": cache, "OMP_NUM_THREADS": "1"}
-    proc = subprocess.run(
-        [sys.executable, "-c", _SCRIPT], env=env, capture_output=True, text=True, check=True
-    )
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
 @pytest.mark.slow
 def test_oracle_trials_plan_the_same_actions_under_every_cpu_variant(tmp_path):
     """About 40 s per variant on 2 cores."""
     results = {
-        name: _trials(overrides, os.fspath(tmp_path / name))
+        name: run_under(_SCRIPT, overrides, os.fspath(tmp_path / name))
         for name, overrides in VARIANTS.items()
     }
     own = results["own"]
