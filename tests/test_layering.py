@@ -2,7 +2,7 @@
 no oversized files.
 
 Stages (``docs/architecture.md``): envs -> data -> models -> classifiers -> planning -> training
--> benchmark -> metrics / report -> cli. ``vp2.utils``, ``vp2.spec`` and ``vp2._quiet`` are shared
+-> run -> oracle / diagnose -> benchmark -> metrics / report -> cli. ``vp2.utils``, ``vp2.spec`` and ``vp2._quiet`` are shared
 by every stage and import no stage. Imports inside functions count: a lazy import is still a
 dependency, and so is an import named as a string (``"vp2.models.simulator:SimulatorModel"`` handed
 to ``importlib``, a registry of factory paths). The size rule holds for ``benchmarks/`` too.
@@ -15,6 +15,7 @@ import re
 from pathlib import Path
 
 import pytest
+from benchmarks.checks.architecture_figures import strongly_connected
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = SRC / "vp2"
@@ -27,10 +28,13 @@ STAGES: dict[str, int] = {
     "classifiers": 3,
     "planning": 4,
     "training": 5,
-    "benchmark": 6,
-    "metrics": 7,
-    "report": 7,
-    "cli": 8,
+    "run": 6,
+    "oracle": 7,
+    "diagnose": 7,
+    "benchmark": 8,
+    "metrics": 9,
+    "report": 9,
+    "cli": 10,
 }
 SHARED = {"utils", "spec", "_quiet"}
 MAX_LINES = 500
@@ -110,39 +114,7 @@ def test_no_backward_imports():
 
 
 def test_no_import_cycles():
-    g = graph()
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on_stack: set[str] = set()
-    cycles: list[list[str]] = []
-    counter = [0]
-
-    def visit(v: str) -> None:  # Tarjan's strongly connected components
-        index[v] = low[v] = counter[0]
-        counter[0] += 1
-        stack.append(v)
-        on_stack.add(v)
-        for w in g.get(v, ()):
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on_stack:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            component = []
-            while True:
-                w = stack.pop()
-                on_stack.discard(w)
-                component.append(w)
-                if w == v:
-                    break
-            if len(component) > 1:
-                cycles.append(sorted(component))
-
-    for v in sorted(g):
-        if v not in index:
-            visit(v)
+    cycles = strongly_connected(graph())
     assert not cycles, "import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
 
 
@@ -183,7 +155,7 @@ def test_the_checker_sees_an_import_named_as_a_string(tmp_path):
     assert imported_modules("vp2.envs.base", f, known) == {"vp2.benchmark.runner", "vp2.benchmark"}
 
 
-@pytest.mark.parametrize("mod", ["vp2.benchmark.config", "vp2.benchmark.model_spec"])
+@pytest.mark.parametrize("mod", ["vp2.run.config", "vp2.run.model_spec"])
 def test_light_modules_do_not_import_torch(mod):
     """Reading a run's config (and resolving ``--model`` strings) must not load torch."""
     import subprocess

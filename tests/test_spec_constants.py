@@ -30,6 +30,7 @@ RULES: list[tuple[str, str, object]] = [
     ("ROBODESK_PIXEL_WEIGHT", r"\w*pixel_weight\w*", spec.ROBODESK_PIXEL_WEIGHT),
     ("TABLETOP_PIXEL_WEIGHT", r"\w*pixel_weight\w*", spec.TABLETOP_PIXEL_WEIGHT),
     ("ROBODESK_CLASSIFIER_WEIGHT", r"\w*classifier_weight\w*", spec.ROBODESK_CLASSIFIER_WEIGHT),
+    ("ENSEMBLE_DISAGREEMENT_WEIGHT", r"lam|\w*disagreement\w*", spec.ENSEMBLE_DISAGREEMENT_WEIGHT),
 ]
 SIGMA_LITERALS = {env: tuple(s) for env, s in spec.SIGMA.items()}
 
@@ -105,3 +106,6 @@ def test_the_check_finds_a_second_definition():
         "NUM_SAMPLES", "MAIN_JOB_NUM_SAMPLES", "GAMMA", "MIN_SEEDS", "SIGMA[robodesk]"
     ]
     assert violations("from vp2.spec import NUM_SAMPLES\nnum_samples = NUM_SAMPLES\n") == []
+    assert [f.split(" ")[0] for f in violations("def cost(lam: float = 0.01): ...\n")] == [
+        "ENSEMBLE_DISAGREEMENT_WEIGHT"
+    ]

@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 
 from benchmarks.common import argument_parser
+from vp2.run.run_dir import RunDir
 
 VP2 = [sys.executable, "-m", "vp2.cli"]
 #: Keys of a trial record that are timings or host facts, not behaviour.
@@ -80,8 +81,8 @@ def runs(result: Path, work: Path) -> None:
             shutil.rmtree(run_dir)
         p = sh(VP2 + ["run", "--out", str(run_dir)] + common + extra)
         (out / f"{label}.log").write_text(f"rc={p.returncode}\n")
-        lines = (run_dir / "trials.jsonl").read_text().splitlines() if (
-            run_dir / "trials.jsonl").exists() else []
+        trials = RunDir(run_dir).trials_file
+        lines = trials.read_text().splitlines() if trials.exists() else []
         records = sorted((strip(json.loads(line)) for line in lines),
                          key=lambda r: json.dumps(r, sort_keys=True))
         (out / f"{label}.trials.json").write_text(json.dumps(records, indent=1, sort_keys=True))

@@ -146,7 +146,7 @@ __all__ = [
 ]  # fmt: skip
 
 
-#: The defaults of the flags that --smoke changes: the comparison the issue asks for.
+#: The defaults of the flags that --smoke changes: the full comparison.
 FULL = dict(
     budget_minutes=60.0, tasks=["robodesk"], num_instances=3, seeds=[0, 1], num_samples=50,
     num_steps=15, batch_size=32, eval_batches=4, eval_interval=1000, ckpt_interval=500,

@@ -18,7 +18,7 @@ from benchmarks.comparison.model_comparison_publish import publish, publish_foun
 from benchmarks.comparison.model_comparison_runs import runs_stage
 from benchmarks.comparison.model_comparison_settings import FAMILIES, Settings, StageLog
 from benchmarks.comparison.model_comparison_train import model_spec, train_family
-from vp2.benchmark.model_spec import ModelSpec
+from vp2.run.model_spec import ModelSpec
 from vp2.utils.io import json_safe, write_json_atomic
 
 

@@ -11,16 +11,17 @@ from pathlib import Path
 import torch
 
 from benchmarks.comparison.model_comparison_settings import Settings, StageLog, done_record
-from vp2.benchmark.diagnose import DiagnoseConfig, diagnose_model, measure_conditioning
-from vp2.benchmark.model_spec import resolve_model
 from vp2.data.storage import load_manifest
+from vp2.diagnose.model import DiagnoseConfig, diagnose_model, measure_conditioning
 from vp2.envs import env_class
+from vp2.run.model_spec import resolve_model
+from vp2.run.run_dir import diagnosis_partial_path
 from vp2.utils.io import json_safe, write_json_atomic
 
 
 def conditioning_stage(s: Settings, family: str, spec: str, stage_log: StageLog) -> None:
     """True versus shuffled actions on held-out clips, measured as ``vp2 diagnose`` measures
-    them (:func:`vp2.benchmark.diagnose.measure_conditioning`, seed 0: the same clips and
+    them (:func:`vp2.diagnose.model.measure_conditioning`, seed 0: the same clips and
     shuffle): ``conditioning/<family>.json``."""
     path = s.out / "conditioning" / f"{family}.json"
     settings = {
@@ -28,7 +29,7 @@ def conditioning_stage(s: Settings, family: str, spec: str, stage_log: StageLog)
         "data": str(s.data),
         "clips": s.conditioning_clips,
         "samples": s.conditioning_samples,
-        "measure": "vp2.benchmark.diagnose.measure_conditioning",
+        "measure": "vp2.diagnose.model.measure_conditioning",
     }
     if done_record(path, settings) is not None:
         stage_log.add("conditioning", family, "done earlier")
@@ -68,7 +69,7 @@ def diagnose_stage(s: Settings, name: str, spec: str, stage_log: StageLog) -> Pa
     if done_record(path, settings) is not None:
         stage_log.add("diagnose", name, "done earlier")
         return path
-    partial = path.with_name(f"{path.stem}.partial.json")  # a stopped diagnosis goes on from it
+    partial = diagnosis_partial_path(path)  # a stopped diagnosis goes on from it
     report = diagnose_model(config, partial=partial)
     write_json_atomic(path, json_safe({"settings": settings, "report": report}))
     partial.unlink(missing_ok=True)

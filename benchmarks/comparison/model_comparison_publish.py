@@ -16,6 +16,7 @@ from benchmarks.comparison.model_comparison_settings import Settings, StageLog
 from vp2.report.page import write_report
 from vp2.report.study import study
 from vp2.report.study_output import write_study
+from vp2.run.run_dir import REPORT_FILE, RunDir
 from vp2.utils.io import atomic_path
 
 
@@ -68,7 +69,7 @@ def publish_found(s: Settings) -> Path:
     )
     order = s.run_order()
     run_dirs = {n: s.out / "runs" / n for n in order}
-    run_dirs = {n: d for n, d in run_dirs.items() if (d / "summary.json").is_file()}
+    run_dirs = {n: d for n, d in run_dirs.items() if RunDir(d).summary_json.is_file()}
     if not run_dirs:
         raise ValueError(f"--publish-only: no finished run under {s.out / 'runs'}")
     metrics_files = {n: s.out / "metrics" / n / "metrics.json" for n in s.predictor_names()}
@@ -102,7 +103,7 @@ def publish(
     labels = [n for n in s.table_names() if n in run_dirs]
     report = write_report(
         [run_dirs[n] for n in labels],
-        s.out / "report.html",
+        s.out / REPORT_FILE,
         metrics={str(run_dirs[n]): path for n, path in metrics_files.items() if n in run_dirs},
         labels=labels,
         title="vp2 model comparison: " + ", ".join(labels),

@@ -25,10 +25,11 @@ from benchmarks.comparison.model_comparison_sections import (
     study_lines,
     success_lines,
 )
+from vp2.run.run_dir import REPORT_FILE, RunDir
 
 
 def _trials_on_disk(run_dir: Path) -> int:
-    path = run_dir / "trials.jsonl"
+    path = RunDir(run_dir).trials_file
     return len(path.read_text().splitlines()) if path.is_file() else 0
 
 
@@ -72,13 +73,13 @@ def results_markdown(
     lines += ["", "## The report", ""]
     if screenshot_note is None:
         lines += [
-            "`report.html` is the `vp2 report` page of every run above; its top:",
+            f"`{REPORT_FILE}` is the `vp2 report` page of every run above; its top:",
             "",
             f"![vp2 report]({image})",
         ]
     else:
         lines.append(
-            f"`report.html` is the `vp2 report` page of every run above ({screenshot_note})."
+            f"`{REPORT_FILE}` is the `vp2 report` page of every run above ({screenshot_note})."
         )
     return "\n".join(lines) + "\n"
 
@@ -139,7 +140,7 @@ def combined_markdown(
     ]
     for out, name in zip(outs, names, strict=True):
         s = json.loads((out / "comparison.json").read_text())
-        pending = [n for n in s["run_names"] if not (out / "runs" / n / "summary.json").is_file()]
+        pending = [n for n in s["run_names"] if not RunDir(out / "runs" / n).summary_json.is_file()]
         lines += ["", f"## {name}", "",
                   f"Dataset `{s['data']}`, tasks {', '.join(s['tasks'])}; files under `{out}`"
                   f"{records_note(s)}.", ""]
@@ -148,7 +149,7 @@ def combined_markdown(
         image = images.get(out)
         lines += ["", f"### The report ({name})", ""]
         lines.append(f"![vp2 report, {name}]({image})" if image else
-                     f"`{out / 'report.html'}` is the `vp2 report` page of this part's runs.")
+                     f"`{out / REPORT_FILE}` is the `vp2 report` page of this part's runs.")
     if notes:
         lines += ["", *reading_lines(notes)]
     return "\n".join(lines) + "\n"

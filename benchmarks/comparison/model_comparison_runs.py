@@ -7,10 +7,10 @@ import sys
 from typing import Any
 
 from benchmarks.comparison.model_comparison_settings import BASELINES, Settings, StageLog
-from vp2.benchmark.config import RunConfig
 from vp2.benchmark.runner import RunResult, run_benchmark
 from vp2.planning.config import PlannerConfig
 from vp2.report.page import write_run_report
+from vp2.run.config import RunConfig
 
 
 def run_config(s: Settings, name: str, spec: str | None) -> RunConfig:

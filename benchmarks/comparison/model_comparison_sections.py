@@ -8,9 +8,10 @@ import json
 from pathlib import Path
 from typing import Any
 
-from vp2.benchmark.diagnose_score import load_predictor, predicted_score
-from vp2.benchmark.diagnose_verdicts import TOP_FRACTION
+from vp2.diagnose.score import load_predictor, predicted_score
+from vp2.diagnose.verdicts import TOP_FRACTION
 from vp2.report.study import ALL_TASKS, STUDY_METRICS
+from vp2.run.run_dir import RunDir
 
 #: The metrics table's columns: key in ``metrics.json``, title, scale, format.
 METRIC_COLUMNS = (
@@ -100,7 +101,7 @@ def _budget(minutes: float | None) -> str:
 
 def success_lines(out: Path, s: dict[str, Any]) -> list[str]:
     names = s["run_names"]
-    summaries = {name: _read(out / "runs" / name / "summary.json") for name in names}
+    summaries = {name: _read(RunDir(out / "runs" / name).summary_json) for name in names}
     tasks: list[str] = []
     oracle: dict[str, float] = {}
     for summary in summaries.values():
@@ -194,7 +195,7 @@ def conditioning_lines(out: Path, s: dict[str, Any]) -> list[str]:
 
 def control_seconds(run_dir: Path) -> tuple[float, int]:
     """Wall seconds of a run's trials (each trial's ``timings.total_s``) and how many trials."""
-    path = run_dir / "trials.jsonl"
+    path = RunDir(run_dir).trials_file
     if not path.is_file():
         return 0.0, 0
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
@@ -246,7 +247,7 @@ def diagnosis_lines(out: Path, s: dict[str, Any]) -> list[str]:
             predicted, _ = predicted_score(r, asset)
             mark = "†" if predicted is not None else ""
             rescored = rescored or bool(mark)
-        summary = _read(out / "runs" / name / "summary.json")
+        summary = _read(RunDir(out / "runs" / name).summary_json)
         measured = _pct(summary.get("mean")) if summary else "pending"
         seconds, trials = control_seconds(out / "runs" / name)
         time_cell = f"{r['timing']['total_s']:.0f} s / " + (

@@ -20,8 +20,8 @@ from typing import Any
 import torch
 
 from benchmarks import common
-from vp2.benchmark.model_spec import ModelSpec
 from vp2.data.storage import DatasetError, load_manifest
+from vp2.run.model_spec import ModelSpec
 from vp2.utils.io import json_safe
 
 

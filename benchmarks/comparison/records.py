@@ -30,7 +30,7 @@ from typing import Any
 
 import yaml
 
-from vp2.benchmark.results import read_trials
+from vp2.run.run_dir import TRIALS_FILE, RunDir, read_trials
 from vp2.utils.io import atomic_path, json_safe, write_json_atomic
 
 #: The fields of a trial record that the records keep (``timings`` reduced to ``total_s``).
@@ -90,14 +90,15 @@ def save_run(run_dir: Path, dest: Path) -> int:
     trials = read_trials(run_dir)  # a missing file reads as no trials
     if not trials:
         return 0
-    config = (run_dir / "config.yaml").read_text()
-    num_samples = (yaml.safe_load(config).get("config") or {}).get("planner", {}).get("num_samples")
+    run = RunDir(run_dir)
+    config = run.config_file.read_text()
+    num_samples = (run.stored().get("config") or {}).get("planner", {}).get("num_samples")
     rows = [json.dumps(compact_trial(t, num_samples), sort_keys=True) for t in trials]
-    kept = dest / "config.yaml"
+    kept = RunDir(dest).config_file
     if not kept.is_file() or _undated(yaml.safe_load(kept.read_text())) != _undated(
             yaml.safe_load(config)):  # a resumed run rewrites only its date: keep the first
         _write(kept, config)
-    _write(dest / "trials.jsonl", "\n".join(rows) + "\n")
+    _write(RunDir(dest).trials_file, "\n".join(rows) + "\n")
     return len(rows)
 
 
@@ -154,12 +155,12 @@ def restore(records: Path, out: Path) -> dict[str, int]:
     kind restored (runs: trials). A run directory that already holds trials is left alone (its
     own records are newer or equal)."""
     counts = {"runs": 0}
-    for saved in sorted((records / "runs").glob("*/trials.jsonl")):
-        run_dir = out / "runs" / saved.parent.name
-        if read_trials(run_dir):
+    for saved in sorted((records / "runs").glob(f"*/{TRIALS_FILE}")):
+        run = RunDir(out / "runs" / saved.parent.name)
+        if read_trials(run.path):
             continue
-        _write(run_dir / "config.yaml", (saved.parent / "config.yaml").read_text())
-        _write(run_dir / "trials.jsonl", saved.read_text())
+        _write(run.config_file, RunDir(saved.parent).config_file.read_text())
+        _write(run.trials_file, saved.read_text())
         counts["runs"] += len(read_trials(saved))
     for kind, (where, _, from_kept) in JSON_KINDS.items():
         counts[kind] = 0

@@ -18,7 +18,7 @@ the finished tokenizer).
 After each round a family's weights are exported (float16, inference only) to
 ``snapshots/<family>-<L>min.pt`` and its **action conditioning** is measured on held-out clips:
 the prediction error under each clip's true actions and under another clip's, measured as
-``vp2 diagnose`` measures it (:func:`vp2.benchmark.diagnose.measure_conditioning`): the ratio
+``vp2 diagnose`` measures it (:func:`vp2.diagnose.model.measure_conditioning`): the ratio
 shuffled / true with 95% bootstrap intervals over clips and over the clips' trajectories. The
 target is an interval over trajectories wholly above ``--target`` (1.1): the clips are windows
 of a few trajectories, so the interval over clips claims more than they hold.
@@ -66,11 +66,11 @@ from benchmarks.comparison.zoo_training_curve import (
     read_points,
     target_interval,
 )
-from vp2.benchmark.diagnose import measure_conditioning
-from vp2.benchmark.model_spec import parse_model_args as parse_model_args_of_vp2
-from vp2.benchmark.model_spec import resolve_model
 from vp2.data.storage import load_manifest
+from vp2.diagnose.model import measure_conditioning
 from vp2.envs import env_class
+from vp2.run.model_spec import parse_model_args as parse_model_args_of_vp2
+from vp2.run.model_spec import resolve_model
 from vp2.training import trainer as trainer_module
 from vp2.training.checkpoint import list_checkpoints
 from vp2.training.config import TrainConfig
@@ -373,7 +373,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 def parse_model_args(items: Sequence[str], families: Sequence[str]) -> tuple[tuple[str, str, Any], ...]:
     """``FAMILY:KEY=VALUE`` items -> ``((family, key, value), ...)``; ``KEY=VALUE`` is read as
-    ``vp2 run --model-arg`` reads it (:func:`vp2.benchmark.model_spec.parse_model_args`)."""
+    ``vp2 run --model-arg`` reads it (:func:`vp2.run.model_spec.parse_model_args`)."""
     out = []
     for item in items:
         family, _, rest = item.partition(":")

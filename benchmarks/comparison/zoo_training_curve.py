@@ -117,7 +117,7 @@ def card_fields(record: dict[str, Any], command: str) -> dict[str, Any]:
             "dataset": f"{data} (held-out clips)",
             "date": date,
             "command": command,
-            "note": "measured by the zoo training after the round (vp2.benchmark.diagnose."
+            "note": "measured by the zoo training after the round (vp2.diagnose.model."
             "measure_conditioning, as vp2 diagnose does)"
             + (f"; measured again on {record['remeasured'][:10]} for the interval over "
                "trajectories (--remeasure: the same ratio)" if record.get("remeasured") else "")

@@ -23,9 +23,9 @@ import time
 import torch
 
 from benchmarks import common
-from vp2.benchmark.diagnose_measures import held_out_clips
-from vp2.benchmark.model_spec import resolve_model
+from vp2.diagnose.measures import held_out_clips
 from vp2.metrics.image import psnr, ssim
+from vp2.run.model_spec import resolve_model
 
 FIELDS = {"mcvd": "sampling_steps", "maskvit": "decoding_iterations"}
 

@@ -4,7 +4,7 @@
         --model svg_prime:src/vp2/assets/models/svg_prime_tiny_robodesk.pt \\
         --data data/robodesk-20x-64px --clips 128 --samples 3
 
-The measure of ``vp2 diagnose`` (:func:`vp2.benchmark.diagnose.measure_conditioning`), printed
+The measure of ``vp2 diagnose`` (:func:`vp2.diagnose.model.measure_conditioning`), printed
 as a table with both pixel sets. For a fixed, seeded set of validation clips (the model's
 context + future frames, drawn as ``vp2 metrics`` and ``vp2 diagnose`` draw them), the model
 predicts the future frames from the true actions and from another clip's (a random derangement
@@ -28,10 +28,10 @@ from pathlib import Path
 import torch
 
 from benchmarks import common
-from vp2.benchmark.diagnose import measure_conditioning
-from vp2.benchmark.model_spec import resolve_model
 from vp2.data.storage import load_manifest
+from vp2.diagnose.model import measure_conditioning
 from vp2.envs import env_class
+from vp2.run.model_spec import resolve_model
 
 
 def main(argv: list[str] | None = None) -> None:

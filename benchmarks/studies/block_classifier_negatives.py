@@ -40,7 +40,6 @@ import numpy as np
 import torch
 
 from benchmarks import common
-from vp2.benchmark.results import read_trials
 from vp2.classifiers.checkpoint import load_classifier, read_classifier_checkpoint, save_classifier
 from vp2.classifiers.data import (
     FrameSet,
@@ -58,6 +57,7 @@ from vp2.classifiers.train import (
 from vp2.data.suite import TaskSuite
 from vp2.envs.robodesk import DENSE_LABEL_THRESHOLD, OFF_TABLE_BELOW
 from vp2.planning.samplers import CorrelatedNoiseSampler
+from vp2.run.run_dir import TRIALS_FILE, RunDir, read_trials
 from vp2.spec import SIGMA
 from vp2.utils.io import write_json_atomic
 
@@ -137,7 +137,7 @@ def mined(task: str, runs: list[Path], repeat: int) -> FrameSet | None:
     suite = TaskSuite.load()
     parts = []
     for run in runs:
-        for line in (run / "trials.jsonl").read_text().splitlines():
+        for line in RunDir(run).trials_file.read_text().splitlines():
             record = json.loads(line)
             if record["task"] != task or "actions" not in record:
                 continue
@@ -184,7 +184,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, help="training steps (default: the shipped file's)")
     parser.add_argument("--mined", type=Path, nargs="*", default=[],
                         help="directories of oracle trials on tuning instances with their "
-                        "actions (trials.jsonl): a third variant adds their frames")
+                        f"actions ({TRIALS_FILE}): a third variant adds their frames")
     parser.add_argument("--mined-repeat", type=int, default=10)
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()

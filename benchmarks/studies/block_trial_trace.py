@@ -41,12 +41,12 @@ import torch
 
 from benchmarks import common
 from benchmarks.studies.classifier_weight_tuning import with_weight
-from vp2.benchmark.results import read_trials
 from vp2.data.suite import TaskSuite
 from vp2.envs.robodesk import OBJECTS, OFF_TABLE_BELOW
 from vp2.envs.tasks import get_task
 from vp2.planning.agent import frames_to_tensor
 from vp2.planning.planner import build_cost
+from vp2.run.run_dir import TRIALS_FILE, read_trials
 from vp2.utils.io import write_json_atomic
 
 
@@ -193,7 +193,7 @@ def print_summary(s: dict[str, Any]) -> None:
 
 def main() -> None:
     parser = common.argument_parser(__spec__.name, __doc__)
-    parser.add_argument("--run", type=Path, required=True, help="a run directory (trials.jsonl)")
+    parser.add_argument("--run", type=Path, required=True, help=f"a run directory ({TRIALS_FILE})")
     parser.add_argument("--tasks", nargs="+", default=["robodesk/flat_block_off_table"])
     parser.add_argument("--instances", type=int, nargs="*", help="default: every record's")
     parser.add_argument("--json", type=Path, help="also write the traces here")

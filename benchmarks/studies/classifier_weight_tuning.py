@@ -31,6 +31,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks import common  # noqa: E402
+from vp2.run.run_dir import RunDir  # noqa: E402
 from vp2.utils.io import write_json_atomic  # noqa: E402
 
 GRID = (1.0, 10.0, 100.0, 1000.0, 10000.0)
@@ -77,11 +78,11 @@ def ranks_by_weight(task: str, index: int, num_samples: int, weights) -> dict:
 
 
 def run_trial(task: str, index: int, weight: float, num_samples: int) -> dict:
-    from vp2.benchmark.trial import ControlTrial
     from vp2.data.suite import TaskSuite
     from vp2.models.simulator import SimulatorModel
     from vp2.planning.agent import PlanningAgent
     from vp2.planning.config import PlannerConfig
+    from vp2.run.trial import ControlTrial
 
     with_weight(task, weight)
     inst = TaskSuite.load().get(task, index)
@@ -138,7 +139,7 @@ def main() -> None:
         for row in ranks:
             print(json.dumps(row), flush=True)
         write_json_atomic(args.out / "ranks.json", {"command": str(vars(args)), "rows": ranks})
-    trials_file = args.out / "trials.jsonl"
+    trials_file = RunDir(args.out).trials_file
     done = set()
     if trials_file.exists():
         for line in trials_file.read_text().splitlines():

@@ -1,12 +1,12 @@
 """How sure is an action-conditioning ratio? Every held-out clip, intervals over trajectories.
 
 The action-conditioning ratio (prediction error under another clip's actions over the clip's
-own, :func:`vp2.benchmark.diagnose_measures.conditioning_errors`) is usually measured on 64
+own, :func:`vp2.diagnose.measures.conditioning_errors`) is usually measured on 64
 clips drawn from a dataset's ``valid`` split. The clips are windows of a few trajectories (the
 default RoboDesk dataset's 350 valid clips come from 14), so clips of one trajectory are not
 independent draws, and an interval over clips is narrower than the evidence; ``vp2 diagnose``
 therefore gives an interval over the clips' trajectories beside it
-(:func:`vp2.benchmark.diagnose_measures.trajectory_interval`). This study measures the ratio on
+(:func:`vp2.diagnose.measures.trajectory_interval`). This study measures the ratio on
 **every** valid clip (or ``--clips`` of them) with both 95% intervals: the bootstrap over
 clips, and the bootstrap over trajectories (each resample draws whole trajectories with all
 their clips).
@@ -23,13 +23,13 @@ import numpy as np
 import torch
 
 from benchmarks import common
-from vp2.benchmark.diagnose_measures import (
+from vp2.data.loader import ClipDataset, select_clips
+from vp2.data.storage import load_manifest
+from vp2.diagnose.measures import (
     conditioning_errors,
     ratio_statistics,
 )
-from vp2.benchmark.model_spec import resolve_model
-from vp2.data.loader import ClipDataset, select_clips
-from vp2.data.storage import load_manifest
+from vp2.run.model_spec import resolve_model
 
 CONTEXT, FUTURE = 2, 10
 

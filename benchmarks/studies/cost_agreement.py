@@ -38,7 +38,8 @@ import torch
 from tqdm.auto import tqdm
 
 from benchmarks import common
-from vp2.benchmark.diagnose_measures import (
+from vp2.data.suite import TaskInstance, TaskSuite
+from vp2.diagnose.measures import (
     draw_batch,
     oracle_cache_dir,
     reset_agent,
@@ -48,10 +49,9 @@ from vp2.benchmark.diagnose_measures import (
     step_context,
     step_objective,
 )
-from vp2.benchmark.model_spec import resolve_model
-from vp2.benchmark.results import read_trials
-from vp2.data.suite import TaskInstance, TaskSuite
 from vp2.envs import env_class
+from vp2.run.model_spec import resolve_model
+from vp2.run.run_dir import read_trials
 from vp2.utils.io import write_json_atomic
 
 #: The points of an instance's scripted path that are probed: after none, and after half, of
@@ -94,7 +94,7 @@ def run(
     cache: Path | None = None,
 ) -> dict[str, Any]:
     """The agreement of every model with the simulator (module docstring); ``cache``: where
-    the simulator's scores are kept (:func:`~vp2.benchmark.diagnose_measures.simulator_scores`)."""
+    the simulator's scores are kept (:func:`~vp2.diagnose.measures.simulator_scores`)."""
     instances = TaskSuite.load(None).select([env], instances_per_task)
     action_dim = int(env_class(env).action_dim)
     oracle = resolve_model("simulator", {}, env=env, action_dim=action_dim, device=device)

@@ -36,15 +36,15 @@ from scipy import stats
 from tqdm import tqdm
 
 from benchmarks import common
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.model_spec import resolve_model
 from vp2.benchmark.runner import select_instances
-from vp2.benchmark.trial import goal_image_at, trial_seed
 from vp2.data.suite import TaskSuite
 from vp2.envs import env_class, split_name
 from vp2.planning.agent import PlanningAgent, frames_to_tensor
 from vp2.planning.planner import PlannerConfig
 from vp2.planning.samplers import broadcast_std
+from vp2.run.config import RunConfig
+from vp2.run.model_spec import resolve_model
+from vp2.run.trial import goal_image_at, trial_seed
 from vp2.utils.io import write_json_atomic
 
 AXES = ("x", "y", "z")

@@ -49,10 +49,10 @@ def pick_clip(frames: torch.Tensor, context: int) -> int:
 
 def predictions(spec: str, env: str, data: Path, clips: int, seed: int) -> dict[str, Any]:
     """The model's predictions of the picked clip with its true and with shuffled actions."""
-    from vp2.benchmark.diagnose_measures import derangement, held_out_clips
-    from vp2.benchmark.model_spec import ModelSpec, resolve_model
+    from vp2.diagnose.measures import derangement, held_out_clips
     from vp2.envs import env_class
     from vp2.models.contract import predict_in_chunks
+    from vp2.run.model_spec import ModelSpec, resolve_model
 
     model = resolve_model(
         ModelSpec.parse(spec), {}, env=env, action_dim=int(env_class(env).action_dim),

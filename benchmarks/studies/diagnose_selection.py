@@ -2,7 +2,7 @@
 
     .venv/bin/python -m benchmarks.studies.diagnose_selection [--validation results/diagnose/validation.json]
 
-The shipped predictor of `vp2 diagnose` (:mod:`vp2.benchmark.diagnose_score`) fits all six
+The shipped predictor of `vp2 diagnose` (:mod:`vp2.diagnose.score`) fits all six
 measures. On some model sets one measure alone orders the models better than the fit, but which
 one changes with the set. This study asks whether a choice among the candidates (all six
 measures, or one alone) made **inside each leave-one-model-out fold** helps: for each held-out
@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks import common
-from vp2.benchmark import diagnose_score as ds
-from vp2.benchmark.diagnose_measures import spearman
+from vp2.diagnose import score as ds
+from vp2.diagnose.measures import spearman
 
 #: The candidates: all measures, or one alone (the others held at 0, so they carry no weight).
 CANDIDATES: dict[str, tuple[str, ...]] = {"all six": ds.FEATURES, **{f: (f,) for f in ds.FEATURES}}

@@ -21,12 +21,12 @@ directories in ``control`` on the model's environment) and the perceptual metric
 FVD of ``vp2 metrics``, where given). Then, per environment with at least 5 models (an
 environment with fewer borrows the predictor of the environment with the most models, rescaled
 by the two environments' oracle success in the shipped oracle table of the diagnoses' planner
-budget, :func:`vp2.benchmark.diagnose_score.transfer`; its models are all held out from that
+budget, :func:`vp2.diagnose.score.transfer`; its models are all held out from that
 fit, so their predictions are validated as they are, given at least 3):
 
 * the **held-out predictions**: each model's score from the predictor
-  (:mod:`vp2.benchmark.diagnose_score`) fitted on the *other* models, its ridge penalty chosen
-  by those models alone (nested leave-one-out, :func:`~vp2.benchmark.diagnose_score.choose_ridge`);
+  (:mod:`vp2.diagnose.score`) fitted on the *other* models, its ridge penalty chosen
+  by those models alone (nested leave-one-out, :func:`~vp2.diagnose.score.choose_ridge`);
   beside it the same with the penalty fixed at 1;
 * **Spearman** of the held-out predictions with measured success, beside the Spearman of SSIM,
   −LPIPS and −FVD with success on the same models (signed so that +1 means "the better metric
@@ -48,8 +48,8 @@ import numpy as np
 
 from benchmarks import common
 from benchmarks.comparison.records import save_run
-from vp2.benchmark.diagnose_measures import spearman
-from vp2.benchmark.diagnose_score import (
+from vp2.diagnose.measures import spearman
+from vp2.diagnose.score import (
     FEATURES,
     FORMAT,
     RIDGE,
@@ -60,14 +60,14 @@ from vp2.benchmark.diagnose_score import (
     predict,
     transfer,
 )
-from vp2.benchmark.results import read_trials
+from vp2.run.run_dir import read_trials
 from vp2.utils.io import json_safe, write_json_atomic
 
 ASSET = Path(__file__).resolve().parents[2] / "src" / "vp2" / "assets" / "diagnose_predictor.json"
 #: Fewest models an environment needs for a held-out figure.
 MIN_MODELS = 3
 #: Fewest models an environment needs to fit its own predictor (six weights; with fewer it
-#: borrows another environment's, :func:`vp2.benchmark.diagnose_score.transfer`).
+#: borrows another environment's, :func:`vp2.diagnose.score.transfer`).
 MIN_FIT = 5
 
 
@@ -78,7 +78,7 @@ def oracle_rates(num_samples: int, asset: Path | None = None) -> tuple[str, dict
     Raises:
         ValueError: if no shipped table is at that budget.
     """
-    from vp2.benchmark.shipped_oracle import load_shipped_oracle
+    from vp2.oracle.shipped import load_shipped_oracle
 
     shipped = load_shipped_oracle(asset)
     for table in shipped.tables if shipped else ():
@@ -125,7 +125,7 @@ def diagnose_report(entry: Mapping[str, Any], out: Path) -> dict[str, Any]:
     path = out / "reports" / f"{entry['label']}.json"
     if path.is_file():
         return json.loads(path.read_text())
-    from vp2.benchmark.diagnose import DiagnoseConfig, diagnose_model, write_report
+    from vp2.diagnose.model import DiagnoseConfig, diagnose_model, write_report
 
     report = diagnose_model(DiagnoseConfig(model=entry["model"], env=entry["env"]))
     write_report(path, report)

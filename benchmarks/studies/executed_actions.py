@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import common
-from vp2.benchmark.results import is_ok, trial_key
-from vp2.benchmark.run_dir import RunDir
+from vp2.run.results import is_ok, trial_key
+from vp2.run.run_dir import RunDir
 
 
 def executed(run_dir: Path) -> dict[tuple, np.ndarray]:

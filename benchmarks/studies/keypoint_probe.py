@@ -30,7 +30,7 @@ from typing import Any
 import torch
 
 from benchmarks import common
-from vp2.benchmark.diagnose_measures import held_out_clips
+from vp2.diagnose.measures import held_out_clips
 from vp2.models.registry import load_model
 from vp2.models.struct_vrnn import StructVRNN
 from vp2.utils.io import write_json_atomic

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from benchmarks import common
-from vp2.benchmark.diagnose_measures import derangement, held_out_clips, ratio_statistics
+from vp2.diagnose.measures import derangement, held_out_clips, ratio_statistics
 from vp2.models.registry import load_model
 
 

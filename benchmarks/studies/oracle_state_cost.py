@@ -33,7 +33,6 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from benchmarks import common  # noqa: E402
-from vp2.benchmark.trial import ControlTrial  # noqa: E402
 from vp2.data.suite import TaskInstance, TaskSuite  # noqa: E402
 from vp2.envs import make_env_from_metadata, split_name  # noqa: E402
 from vp2.envs.robodesk import OBJECTS as ROBODESK_OBJECTS  # noqa: E402
@@ -41,6 +40,7 @@ from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv  # noqa: E402
 from vp2.planning.agent import Observation  # noqa: E402
 from vp2.planning.optimizers import shift_plan  # noqa: E402
 from vp2.planning.planner import PlannerConfig, build_optimizer  # noqa: E402
+from vp2.run.trial import ControlTrial  # noqa: E402
 
 HORIZON = 10
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import common
-from vp2.benchmark.results import read_trials
+from vp2.run.run_dir import TRIALS_FILE, RunDir, read_trials
 from vp2.utils.io import write_json_atomic
 
 #: Success threshold of the tabletop (SPEC §1.2), metres.
@@ -150,11 +150,11 @@ def markdown(rows: list[dict], command: str) -> str:
 def main(argv: list[str] | None = None) -> None:
     p = common.argument_parser(__spec__.name, __doc__)
     p.add_argument("--table", type=Path, default=Path("results/oracle/samples-50"),
-                   help="a folder with trials.jsonl (a shipped table's records or a run)")
+                   help=f"a folder with {TRIALS_FILE} (a shipped table's records or a run)")
     p.add_argument("--out", type=Path, default=Path("outputs/tabletop-failures"))
     args = p.parse_args(argv)
-    if not (args.table / "trials.jsonl").is_file():
-        raise SystemExit(f"--table {args.table} has no trials.jsonl")
+    if not RunDir(args.table).trials_file.is_file():
+        raise SystemExit(f"--table {args.table} has no {TRIALS_FILE}")
     rows = analyse(args.table)
     args.out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(args.out / "failures.json", rows)

@@ -36,6 +36,9 @@ SIGMA: dict[str, tuple[float, ...]] = {
     "robodesk": (0.5, 0.5, 0.5, 0.1, 0.1),
     "tabletop": (0.5, 0.5, 0.5, 0.0),
 }
+#: Ensembles: the weight λ of the members' disagreement ``max_i ‖Iⁱ − mean‖₁`` that is
+#: subtracted from a randomly chosen member's score.
+ENSEMBLE_DISAGREEMENT_WEIGHT = 0.01
 
 # ----------------------------------------------------------------------------------- §6 costs
 

@@ -9,7 +9,7 @@ import pytest
 from tests.benchmark import tiny_suite_path
 from vp2.benchmark import main_job
 from vp2.benchmark.main_job import MainJobConfig, run_main_job
-from vp2.benchmark.results import read_trials
+from vp2.run.run_dir import read_trials
 
 
 def _config(tmp_path: Path, **overrides) -> MainJobConfig:

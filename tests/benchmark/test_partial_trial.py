@@ -1,5 +1,5 @@
 """A trial cut off mid-way resumes at the step it reached and ends exactly as the uninterrupted
-trial (vp2.benchmark.partial): by hand through ControlTrial, and through a run whose first
+trial (vp2.run.partial): by hand through ControlTrial, and through a run whose first
 attempt of a trial dies after two steps."""
 
 from __future__ import annotations
@@ -11,20 +11,19 @@ import pytest
 
 from tests.benchmark import tiny_suite_path
 from vp2.benchmark import worker
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.model_spec import resolve_model
-from vp2.benchmark.partial import (
+from vp2.benchmark.runner import run_benchmark
+from vp2.data.suite import TaskSuite
+from vp2.planning import PlannerConfig, PlanningAgent, RandomActions
+from vp2.run.config import RunConfig
+from vp2.run.model_spec import resolve_model
+from vp2.run.partial import (
     PartialMismatch,
     PartialTrial,
     load_partial,
-    partial_path,
     save_partial,
 )
-from vp2.benchmark.results import read_trials
-from vp2.benchmark.runner import run_benchmark
-from vp2.benchmark.trial import ControlTrial
-from vp2.data.suite import TaskSuite
-from vp2.planning import PlannerConfig, PlanningAgent, RandomActions
+from vp2.run.run_dir import RunDir, read_trials
+from vp2.run.trial import ControlTrial
 
 TASK = "tabletop/push_sphere"
 STEPS = 5
@@ -65,7 +64,7 @@ def test_a_resumed_oracle_trial_ends_as_the_uninterrupted_one(instance, oracle_a
         _trial(instance, oracle_agent, checkpoint=_cut_after(3, saved)).run()
     assert [p.steps for p in saved] == [1, 2, 3]
     # through the file, as a worker keeps it
-    path = partial_path(tmp_path, TASK, 1, 3)
+    path = RunDir(tmp_path).partial_path(TASK, 1, 3)
     save_partial(path, saved[-1])
     partial = load_partial(path)
     np.testing.assert_array_equal(partial.actions, whole.actions[:3])
@@ -123,7 +122,7 @@ def test_a_run_resumes_a_trial_whose_first_attempt_died_mid_way(tmp_path, monkey
     run_benchmark(config)
     (whole,) = read_trials(tmp_path / "whole")
 
-    monkeypatch.setattr("vp2.benchmark.partial.CHECKPOINT_EVERY_S", 0.0)
+    monkeypatch.setattr("vp2.run.partial.CHECKPOINT_EVERY_S", 0.0)
     real_save, calls = worker.save_partial, []
 
     def dying_save(path, partial):
@@ -140,4 +139,4 @@ def test_a_run_resumes_a_trial_whose_first_attempt_died_mid_way(tmp_path, monkey
     assert record["previous_errors"][0]["message"] == "killed"
     assert record["resumed_at_step"] == 2 and calls == [1, 2, 3, 4]
     assert record["actions"] == whole["actions"] and record["success"] == whole["success"]
-    assert not partial_path(tmp_path / "cut", TASK, 0, 0).exists()  # recorded: deleted
+    assert not RunDir(tmp_path / "cut").partial_path(TASK, 0, 0).exists()  # recorded: deleted

@@ -15,8 +15,8 @@ import pytest
 from tests.benchmark import tiny_suite_path
 from vp2._quiet import ROBOSUITE_NOTICES
 from vp2.benchmark import RunConfig, run_benchmark
-from vp2.benchmark.results import read_trials
 from vp2.planning.config import PlannerConfig
+from vp2.run.run_dir import read_trials
 
 REPO = Path(__file__).resolve().parents[2]
 #: A cheap run: 1 tabletop instance, 1 seed, 2 control steps, 4 planner samples.

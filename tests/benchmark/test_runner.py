@@ -17,12 +17,12 @@ import imageio.v3 as iio
 import pytest
 
 from tests.benchmark import tiny_suite_path
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.model_spec import parse_model_args
-from vp2.benchmark.results import read_trials, trial_key
-from vp2.benchmark.run_dir import RunDir, read_config
 from vp2.benchmark.runner import ModelFailure, run_benchmark
 from vp2.planning.planner import PlannerConfig
+from vp2.run.config import RunConfig
+from vp2.run.model_spec import parse_model_args
+from vp2.run.results import trial_key
+from vp2.run.run_dir import RunDir, read_config, read_trials
 
 REPO = Path(__file__).resolve().parents[2]
 STEPS = 3

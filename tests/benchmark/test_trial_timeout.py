@@ -14,13 +14,14 @@ import pytest
 
 from tests.benchmark import _Base, tiny_suite_path
 from vp2 import cli
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.results import read_trials, trial_key
 from vp2.benchmark.runner import run_benchmark
-from vp2.benchmark.trial import TrialTimeout, time_limit
 from vp2.benchmark.worker import retried_at_once
 from vp2.cli.run import run_config_from_args
 from vp2.planning.config import PlannerConfig
+from vp2.run.config import RunConfig
+from vp2.run.results import trial_key
+from vp2.run.run_dir import read_trials
+from vp2.run.trial import TrialTimeout, time_limit
 
 MODEL = f"{__name__}:HangModel"
 #: Seconds; a trial of the tiny suite takes well under 1 s in a process that has rendered

@@ -8,12 +8,12 @@ from pathlib import Path
 import pytest
 
 from tests.benchmark import TABLETOP_BLIND_SCORE, TABLETOP_PREDICTOR
-from tests.benchmark.test_diagnose import HERE
+from tests.diagnose.test_model import HERE
 from tests.models.synthetic import write_moving_square_dataset
 from vp2 import cli
-from vp2.benchmark.diagnose import DiagnoseConfig
 from vp2.cli import diagnose as diagnose_cmd
 from vp2.cli._fields import build
+from vp2.diagnose.model import DiagnoseConfig
 
 #: The shipped predictor is fitted on RoboDesk models only (vp2/assets/diagnose_predictor.json).
 
@@ -81,10 +81,11 @@ def test_default_report_path_and_missing_dataset(tmp_path, monkeypatch, capsys):
     from tests.benchmark import tiny_suite_path
 
     monkeypatch.chdir(tmp_path)
-    code = cli.main(["diagnose", "--model", "repeat_last_frame", "--env", "tabletop"])
+    code = cli.main(["diagnose", "--model", "repeat_last_frame", "--env", "tabletop",
+                     "--data", "data/tabletop-100x-64px"])
     assert code == 2
     err = capsys.readouterr().err
-    assert "no dataset at data/tabletop-100x-64px" in err and "`vp2 collect tabletop`" in err
+    assert "no dataset at data/tabletop-100x-64px" in err and "`vp2 collect tabletop --out" in err
     code = cli.main(["diagnose", "--model", "repeat_last_frame", "--env", "tabletop",
                      "--clips", "0", "--instances-per-task", "1", "--num-samples", "4",
                      "--suite", str(tiny_suite_path()), "--no-progress"])

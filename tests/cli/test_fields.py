@@ -83,12 +83,12 @@ def test_every_field_needs_an_entry():
 def test_each_command_with_a_config_has_an_entry_per_field():
     """A field added to a command's config without an entry fails here (and when ``vp2``
     builds its parser)."""
-    from vp2.benchmark.config import RunConfig
     from vp2.benchmark.main_job import MainJobConfig
     from vp2.classifiers.train import ClassifierTrainConfig
     from vp2.cli import collect, main_job, run, train, train_classifier
     from vp2.data.collect import CollectionConfig
     from vp2.planning.planner import PlannerConfig
+    from vp2.run.config import RunConfig
     from vp2.training.config import TrainConfig
 
     def names(cls, prefix=""):

@@ -7,11 +7,11 @@ import dataclasses
 import pytest
 
 from vp2 import cli, spec
-from vp2.benchmark.config import AGENTS, RunConfig
 from vp2.cli import run as run_cmd
 from vp2.cli._fields import NOT_A_FLAG, dest
 from vp2.planning import OPTIMIZERS
 from vp2.planning.planner import COST_MODES, PlannerConfig
+from vp2.run.config import AGENTS, RunConfig
 from vp2.utils.executors.base import EXECUTORS
 
 

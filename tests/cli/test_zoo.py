@@ -10,10 +10,10 @@ import torch
 
 from tests.models.test_zoo import make_checkpoint, shipped_zoo_names
 from vp2 import cli
-from vp2.benchmark.results import read_trials
 from vp2.models.checkpoint import read_model_checkpoint
 from vp2.models.zoo import CHECKPOINT_FILE, FIELDS, get_card
 from vp2.models.zoo_entries import train_command
+from vp2.run.run_dir import read_trials
 
 SHIPPED = "svg_prime-tiny-robodesk"
 

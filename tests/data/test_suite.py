@@ -39,7 +39,7 @@ def test_shipped_suite_has_the_canonical_counts(shipped):
 
 
 def test_action_limit_leaves_two_actions_of_slack_in_a_trial():
-    from vp2.benchmark.config import RunConfig
+    from vp2.run.config import RunConfig
 
     # 15 control steps, the first one the zero action: 14 actions; instances need <= 12.
     assert suite_lib.TRIAL_FREE_ACTIONS == RunConfig(model="x", out="x").num_steps - 1 == 14

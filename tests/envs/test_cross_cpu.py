@@ -12,25 +12,23 @@ identical to the machine's own defaults.
 
 from __future__ import annotations
 
-import json
 import os
-import subprocess
-import sys
 import textwrap
 
 import pytest
 
-_AVX512 = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL"
+from tests.cpu_variants import NO_AVX512, run_under
+
 VARIANTS = {
     "own": {},
     "openblas_nehalem": {"OPENBLAS_CORETYPE": "Nehalem"},
     "openblas_haswell": {"OPENBLAS_CORETYPE": "Haswell"},
-    "numpy_avx2": {"NPY_DISABLE_CPU_FEATURES": _AVX512},
+    "numpy_avx2": {"NPY_DISABLE_CPU_FEATURES": NO_AVX512},
     "numba_generic": {"NUMBA_CPU_NAME": "generic"},
     # An AVX2 machine as far as every library can be told so at once.
     "avx2_machine": {
         "OPENBLAS_CORETYPE": "Haswell",
-        "NPY_DISABLE_CPU_FEATURES": _AVX512,
+        "NPY_DISABLE_CPU_FEATURES": NO_AVX512,
         "NUMBA_CPU_NAME": "haswell",
         "GALLIUM_OVERRIDE_CPU_CAPS": "avx",
     },
@@ -65,19 +63,11 @@ _SCRIPT = textwrap.dedent(
 )
 
 
-def _fingerprints(env_overrides: dict[str, str], cache: str) -> dict[str, str]:
-    env = {**os.environ, **env_overrides, "VP2_CACHE_DIR": cache, "OMP_NUM_THREADS": "1"}
-    proc = subprocess.run(
-        [sys.executable, "-c", _SCRIPT], env=env, capture_output=True, text=True, check=True
-    )
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
 @pytest.mark.slow
 def test_first_instances_are_identical_under_every_cpu_variant(tmp_path):
     """About 40 s per variant on 2 cores."""
     results = {
-        name: _fingerprints(overrides, os.fspath(tmp_path / name))
+        name: run_under(_SCRIPT, overrides, os.fspath(tmp_path / name))
         for name, overrides in VARIANTS.items()
     }
     reference = results["own"]

@@ -283,3 +283,15 @@ def test_default_out():
     assert default_out("repeat_last_frame", "tabletop") == Path(
         "runs/metrics/repeat_last_frame-tabletop/metrics.json"
     )
+
+
+def test_an_ensemble_is_measured_on_its_members_mean_prediction(result, data):
+    """Two repeat-last-frame members: their mean is the last frame again, so the same scores."""
+    r = evaluate_model(
+        f"ensemble({SPEC},{SPEC})", data, num_clips=6, seed=3, batch_size=4, device="cpu",
+        progress=False, model_args=ARGS, fvd=False, lpips_nets=(),
+    )
+    assert r["clip_indices"] == result["clip_indices"]
+    for name in ("mse", "psnr", "ssim"):
+        assert r["metrics"][name] == pytest.approx(result["metrics"][name], rel=1e-6)
+    assert [m["spec"] for m in r["model"]["ensemble"]] == [SPEC, SPEC]

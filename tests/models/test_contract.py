@@ -391,9 +391,9 @@ def test_parse_model_spec(tmp_path):
 
 
 def test_checkpoint_inference_overrides(tmp_path):
-    from vp2.benchmark.model_spec import PluginError
-    from vp2.benchmark.model_spec import resolve_model as build_spec
     from vp2.models.checkpoint import write_model_checkpoint
+    from vp2.run.model_spec import PluginError
+    from vp2.run.model_spec import resolve_model as build_spec
 
     model = build_model("mcvd", "tiny", seed=3)
     path = write_model_checkpoint(

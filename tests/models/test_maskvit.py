@@ -186,9 +186,9 @@ def test_trains_with_a_trained_tokenizer_and_checkpoints_are_self_contained(tmp_
 
 def test_planning_trial_with_tiny_maskvit():
     from tests.benchmark import tiny_suite_path
-    from vp2.benchmark.trial import ControlTrial
     from vp2.data.suite import TaskSuite
     from vp2.planning import PlannerConfig, PlanningAgent
+    from vp2.run.trial import ControlTrial
 
     model = build_model("maskvit", "tiny", action_dim=4)
     instance = TaskSuite.load(tiny_suite_path()).get("tabletop/push_sphere", 1)

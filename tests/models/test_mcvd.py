@@ -212,9 +212,9 @@ def test_overfits_a_fixed_batch():
 
 def test_planning_trial_with_two_sampling_steps():
     from tests.benchmark import tiny_suite_path
-    from vp2.benchmark.trial import ControlTrial
     from vp2.data.suite import TaskSuite
     from vp2.planning import PlannerConfig, PlanningAgent
+    from vp2.run.trial import ControlTrial
 
     model = build_model("mcvd", "tiny", action_dim=4, sampling_steps=2)
     instance = TaskSuite.load(tiny_suite_path()).get("tabletop/push_sphere", 1)

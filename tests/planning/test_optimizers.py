@@ -58,11 +58,12 @@ def _rms(a: torch.Tensor, b: torch.Tensor) -> float:
 
 def test_mppi_weights_are_a_stable_softmax_of_gamma_times_score() -> None:
     scores = torch.tensor([0.0, -10.0, -20.0])
-    torch.testing.assert_close(mppi_weights(scores, 0.1), torch.softmax(0.1 * scores, 0))
+    expected = torch.softmax(0.1 * scores.double(), 0)  # the weights are float64
+    torch.testing.assert_close(mppi_weights(scores, 0.1), expected, rtol=1e-15, atol=0)
     huge = torch.tensor([1e6, 1e6 - 1.0, -1e6])  # exp would overflow without the max shift
     weights = mppi_weights(huge, 1.0)
     assert torch.isfinite(weights).all()
-    torch.testing.assert_close(weights.sum(), torch.tensor(1.0))
+    torch.testing.assert_close(weights.sum(), torch.tensor(1.0, dtype=torch.float64))
     assert weights[0] / weights[1] == pytest.approx(np.e, rel=1e-5)
 
 

@@ -18,10 +18,10 @@ from pathlib import Path
 import yaml
 
 from tests.benchmark import tiny_suite_path
-from vp2.benchmark.config import RunConfig
 from vp2.benchmark.runner import run_benchmark
 from vp2.planning.config import PlannerConfig
 from vp2.report.page import write_run_report
+from vp2.run.config import RunConfig
 
 TASK = "tabletop/push_sphere"
 #: Mean success over seeds of each run.

@@ -38,7 +38,7 @@ def test_control_counts_finished_trials_per_environment(tmp_path):
     assert (row["samples"], row["steps"], row["tasks"]) == (50, 15, 2)
     assert row["solved"] == ["robodesk/open_slide", "robodesk/push_red"]
     assert row["suite"] == "vp2-task-suite/3" and row["date"] == "2026-11-21"
-    # vp2.benchmark.ship_oracle.run_command, with the folder the run was written to
+    # vp2.oracle.build.run_command, with the folder the run was written to
     assert row["command"] == ("vp2 run --model svg_prime:m.pt --tasks robodesk --num-instances 2 "
                               f"--seeds 0 --num-samples 50 --out {tmp_path / 'a'}")  # fmt: skip
     both = control_sections([run])

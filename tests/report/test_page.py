@@ -21,11 +21,11 @@ import yaml
 from tests.benchmark import tiny_suite_path
 from tests.report.headless import Browser, find_chromium
 from tests.report.report_runs import SUCCESS, TASK, small_runs, write_metrics_file
-from vp2.benchmark.config import RunConfig
 from vp2.benchmark.runner import run_benchmark
 from vp2.cli import report as report_cmd
 from vp2.report import page as report_lib
 from vp2.report.page import write_report, write_run_report
+from vp2.run.config import RunConfig
 
 PLOT_HEIGHT = 240  # bar_chart's default: a bar of value v is v * 240 px high
 LABELS = {"repeat": "repeat_last_frame", "random": "random actions", "oracle": "simulator"}

@@ -9,10 +9,10 @@ import torch
 from benchmarks.studies import action_conditioning
 
 from tests.models.synthetic import write_moving_square_dataset
-from vp2.benchmark.diagnose import measure_conditioning
-from vp2.benchmark.model_spec import resolve_model
+from vp2.diagnose.model import measure_conditioning
+from vp2.run.model_spec import resolve_model
 
-SHIFT = "tests.benchmark.test_diagnose:ShiftModel"
+SHIFT = "tests.diagnose.test_model:ShiftModel"
 
 
 def test_the_study_prints_the_ratio_and_clips_of_the_diagnosis(tmp_path, capsys):

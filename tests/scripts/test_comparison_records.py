@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 from benchmarks.comparison import records
 
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.results import read_trials
 from vp2.benchmark.runner import run_benchmark
 from vp2.planning.config import PlannerConfig
+from vp2.run.config import RunConfig
+from vp2.run.run_dir import read_trials
 
 REPO = Path(__file__).resolve().parents[2]
 COMMITTED = REPO / "results" / "comparison" / "robodesk"

@@ -6,7 +6,7 @@ import numpy as np
 from benchmarks.studies.conditioning_by_trajectory import measure, valid_clips
 
 from tests.models.synthetic import write_moving_square_dataset
-from vp2.benchmark.model_spec import resolve_model
+from vp2.run.model_spec import resolve_model
 
 
 def test_every_valid_clip_with_its_trajectory_and_both_intervals(tmp_path):
@@ -15,7 +15,7 @@ def test_every_valid_clip_with_its_trajectory_and_both_intervals(tmp_path):
     frames, actions, trajectory = valid_clips(str(data), None)
     assert frames.shape == (10, 12, 3, 64, 64) and actions.shape == (10, 11, 4)
     assert np.bincount(trajectory).tolist() == [5, 5]
-    model = resolve_model("tests.benchmark.test_diagnose:ShiftModel", {}, env="tabletop",
+    model = resolve_model("tests.diagnose.test_model:ShiftModel", {}, env="tabletop",
                           action_dim=4, device="cpu")
     r = measure(model, frames, actions, trajectory, samples=1, batch=4)
     assert r["clips"] == 10 and r["trajectories"] == 2

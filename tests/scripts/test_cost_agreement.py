@@ -1,5 +1,5 @@
 """``benchmarks.studies.cost_agreement``: does a model rank candidates as the simulator does
-(the agreement itself: tests/benchmark/test_diagnose.py)."""
+(the agreement itself: tests/diagnose/test_model.py)."""
 
 from __future__ import annotations
 

@@ -7,9 +7,9 @@ import pytest
 from benchmarks.studies.cost_by_action import headline, parse_models, probe, statistics, table
 
 from tests.benchmark import tiny_suite_path
-from vp2.benchmark.model_spec import resolve_model
 from vp2.data.suite import TaskSuite
 from vp2.models.baselines import RepeatLastFrame
+from vp2.run.model_spec import resolve_model
 
 SHIPPED = "svg_prime:src/vp2/assets/models/svg_prime_tiny_robodesk.pt"
 

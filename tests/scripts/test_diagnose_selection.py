@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from benchmarks.studies.diagnose_selection import CANDIDATES, choose, only, select_then_predict
 
-from vp2.benchmark.diagnose_measures import spearman
-from vp2.benchmark.diagnose_score import FEATURES
+from vp2.diagnose.measures import spearman
+from vp2.diagnose.score import FEATURES
 
 
 def _models(count: int, seed: int = 0):

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from vp2.benchmark.results import read_trials
 from vp2.data.collect import CollectionConfig, collect
+from vp2.run.run_dir import read_trials
 
 REPO = Path(__file__).resolve().parents[2]
 MODULE = "benchmarks.comparison.model_comparison"
@@ -561,7 +561,7 @@ def test_metrics_skipped_for_missing_fvd_weights_are_measured_again(comparison, 
 def test_a_diagnosis_made_before_its_environments_predictor_gets_the_shipped_score(tmp_path):
     from benchmarks.comparison.model_comparison_results import diagnosis_lines
 
-    from vp2.benchmark.diagnose_score import features, load_predictor, predict
+    from vp2.diagnose.score import features, load_predictor, predict
 
     report = json.loads((REPO / "results/comparison/tabletop/diagnose/svg_prime.json").read_text())
     assert report["predicted_control_score"] is None  # measured before the tabletop had one

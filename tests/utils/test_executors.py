@@ -25,12 +25,13 @@ import numpy as np
 import pytest
 
 from tests.benchmark import tiny_suite_path
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.results import read_trials, trial_key
 from vp2.benchmark.runner import run_benchmark
 from vp2.data import storage
 from vp2.data.collect import CollectionConfig, collect
 from vp2.planning.config import PlannerConfig
+from vp2.run.config import RunConfig
+from vp2.run.results import trial_key
+from vp2.run.run_dir import read_trials
 from vp2.utils.executors import LiveQueue, LocalExecutor, RayExecutor, WorkerLost, make_executor
 
 ray = pytest.importorskip("ray")

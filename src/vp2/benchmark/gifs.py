@@ -7,20 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from vp2.benchmark.results import TrialKey
-from vp2.benchmark.run_dir import GIF_DIR
-from vp2.benchmark.trial import TrialResult
+from vp2.run.run_dir import GIF_SUFFIX, RunDir
+from vp2.run.trial import TrialResult
 from vp2.utils.io import atomic_path
-
-
-def _slug(task: str) -> str:
-    return task.replace("/", "_")
-
-
-def gif_path(run_dir: Path, key: TrialKey, suffix: str = "") -> Path:
-    """Where the GIF of a trial goes."""
-    task, index, seed = key
-    return run_dir / GIF_DIR / _slug(task) / f"i{index:03d}_s{seed}{suffix}.gif"
 
 
 def _upscale(frames: np.ndarray, factor: int) -> np.ndarray:
@@ -50,19 +39,20 @@ def write_gif(path: Path, frames: np.ndarray, duration_ms: int = 250) -> None:
 
     with atomic_path(path) as tmp:
         iio.imwrite(
-            tmp, np.ascontiguousarray(frames), extension=".gif", duration=duration_ms, loop=0
+            tmp, np.ascontiguousarray(frames), extension=GIF_SUFFIX, duration=duration_ms, loop=0
         )
 
 
 def write_trial_gifs(run_dir: Path, result: TrialResult, record: dict[str, Any]) -> None:
     """Writes a trial's GIFs (and, with predictions, its plan GIF); adds their paths,
     relative to the run directory, to its ``record``."""
+    run = RunDir(run_dir)
     key = (result.task, result.instance, result.seed)
-    path = gif_path(run_dir, key)
+    path = run.gif_path(*key)
     write_gif(path, execution_frames(result))
     record["gif"] = str(path.relative_to(run_dir))
     predicted = prediction_frames(result)
     if predicted is not None:
-        plan_path = gif_path(run_dir, key, "_plan")
+        plan_path = run.gif_path(*key, plan=True)
         write_gif(plan_path, predicted, duration_ms=500)
         record["plan_gif"] = str(plan_path.relative_to(run_dir))

@@ -11,7 +11,7 @@ first instance(s) of every task category of the shipped suite:
 and writes one run directory per agent under ``out`` (trials, GIFs, summaries, resumable),
 ``tasks.png`` (a contact sheet of the tasks' start images) and ``main.md``: one table with a
 column per agent and one per shipped oracle table that normalises an agent's score (the table
-of the agent's planner samples, :mod:`vp2.benchmark.shipped_oracle`), with a line naming the
+of the agent's planner samples, :mod:`vp2.oracle.shipped`), with a line naming the
 table (or why there is none) per agent. Default sizes keep it within 15 minutes on a 2-core CPU; the deviations
 from the SPEC protocol (one seed, the model's planner samples) are printed with the table.
 
@@ -30,18 +30,19 @@ from pathlib import Path
 from typing import Any
 
 from vp2 import spec
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.results import Summary
 from vp2.benchmark.runner import RunResult, run_benchmark
-from vp2.benchmark.shipped_oracle import (
+from vp2.models.zoo import ZooCard, ZooError, get_card
+from vp2.oracle.shipped import (
     NO_SHIPPED_ORACLE,
     OracleMatch,
     OracleTable,
     ShippedOracle,
     load_shipped_oracle,
 )
-from vp2.models.zoo import ZooCard, ZooError, get_card
 from vp2.planning.planner import PlannerConfig
+from vp2.run.config import RunConfig
+from vp2.run.results import Summary
+from vp2.run.run_dir import GIF_DIR, SUMMARY_FILE, TRIALS_FILE, RunDir
 from vp2.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
@@ -87,7 +88,7 @@ def shipped_model(env: str, action_dim: int, device: str = "cpu") -> Any:
     """
     import torch
 
-    from vp2.benchmark.model_spec import ModelSpec, resolve_model
+    from vp2.run.model_spec import ModelSpec, resolve_model
 
     card = shipped_card(env)
     if card is None:
@@ -226,7 +227,7 @@ def comparison_table(results: dict[str, RunResult], shipped: ShippedOracle | Non
             notes.append(f"- {name}: not the SPEC protocol: {'; '.join(dev)}")
         if r.num_errors:
             notes.append(f"- {name}: {r.num_errors} trial(s) ended in an error "
-                         f"(see {r.run_dir / 'trials.jsonl'})")
+                         f"(see {RunDir(r.run_dir).trials_file})")
     return "\n".join(lines + ([""] + notes if notes else []))
 
 
@@ -267,7 +268,7 @@ def run_main_job(
     text = (f"# vp2 main: success per task category\n\n{table}\n\n"
             f"Success = the task's criterion held at some step of a 15-step trial "
             f"(cell: success rate (trials)). Wall time: {took}.\n\n"
-            + "\n".join(f"- {n}: `{r.run_dir}` (summary.md, trials.jsonl, gifs/)"
+            + "\n".join(f"- {n}: `{r.run_dir}` ({SUMMARY_FILE}, {TRIALS_FILE}, {GIF_DIR}/)"
                         for n, r in results.items()) + "\n")
     path = out / "main.md"
     with atomic_path(path) as tmp:

@@ -6,7 +6,7 @@
    ``(task, instance index, seed)`` and its randomness comes from that key alone;
 2. creates the run directory with the resolved ``config.yaml`` (or, with ``resume=True``,
    checks that the protocol settings match the existing one); before the first trial of a
-   learned model, :func:`vp2.benchmark.diagnose.precheck_model` measures on a few held-out
+   learned model, :func:`vp2.diagnose.model.precheck_model` measures on a few held-out
    clips whether its predictions depend on the actions, warns if not and keeps the figures in
    ``precheck.json`` (``RunConfig.precheck``);
 3. runs the trials not yet in ``trials.jsonl`` in worker processes, each of which builds the
@@ -19,15 +19,15 @@
    run (action size, gradients for ``cem_gd``/``lbfgs``) is refused before any trial;
 5. writes and returns the summary table of the trials its settings cover (records of other
    seeds or instances in the directory are named in a warning, not counted:
-   :meth:`~vp2.benchmark.run_dir.RunDir.split_trials`; per task: mean success over seeds with
+   :meth:`~vp2.run.run_dir.RunDir.split_trials`; per task: mean success over seeds with
    min/max, normalised by an oracle run if one is given, else by the shipped oracle's table
-   of the run's planner samples, :mod:`vp2.benchmark.shipped_oracle`; an oracle run itself is
+   of the run's planner samples, :mod:`vp2.oracle.shipped`; an oracle run itself is
    not normalised), then calls
    the ``after_run`` hook with the run directory (``vp2 run`` and ``vp2 main`` pass the HTML
    report writer, :func:`vp2.report.page.write_run_report`).
 
-The pieces: :mod:`~vp2.benchmark.config` (the run's settings), :mod:`~vp2.benchmark.run_dir`
-(:class:`~vp2.benchmark.run_dir.RunDir`: its files and the checks of a resume),
+The pieces: :mod:`~vp2.run.config` (the run's settings), :mod:`~vp2.run.run_dir`
+(:class:`~vp2.run.run_dir.RunDir`: its files and the checks of a resume),
 :mod:`~vp2.benchmark.worker` (what runs a trial), :mod:`~vp2.benchmark.gifs`; this module is
 the driver loop. A ``--tasks`` environment or ``--num-instances`` beyond what the suite has
 runs what it has, with a warning (:func:`selection_notes`).
@@ -59,14 +59,7 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.diagnose import PRECHECK_FILE, precheck_model
 from vp2.benchmark.gifs import write_trial_gifs
-from vp2.benchmark.model_spec import MODEL_DOCS, check_spec
-from vp2.benchmark.partial import partial_path
-from vp2.benchmark.results import Summary, format_summary, is_ok, trial_key, trial_keys
-from vp2.benchmark.run_dir import Records, RunDir
-from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
 from vp2.benchmark.worker import (
     Job,
     Outcome,
@@ -78,7 +71,13 @@ from vp2.benchmark.worker import (
     worker_died,
 )
 from vp2.data.suite import TaskInstance, TaskSuite
+from vp2.diagnose.model import precheck_model
 from vp2.envs import ENV_TASKS
+from vp2.oracle.shipped import is_oracle_config, load_shipped_oracle, summarize_run
+from vp2.run.config import RunConfig
+from vp2.run.model_spec import MODEL_DOCS, check_spec
+from vp2.run.results import Summary, format_summary, is_ok, trial_key, trial_keys
+from vp2.run.run_dir import Records, RunDir
 from vp2.utils.executors import LiveQueue, LocalExecutor, RayExecutor, WorkerLost
 from vp2.utils.io import json_safe, write_json_atomic
 
@@ -208,7 +207,7 @@ def run_benchmark(
     if config.precheck and jobs and not existing:  # before the run's first trial
         measures = precheck_model(config, envs_of(jobs))
         if measures:  # the report shows it beside the control score
-            write_json_atomic(run_dir / PRECHECK_FILE, json_safe({"precheck": measures}))
+            write_json_atomic(run.precheck_file, json_safe({"precheck": measures}))
     max_attempts = config.max_retries + 1
     requeue: collections.deque[Job] = collections.deque()
     num_run = successes = finished = 0
@@ -270,7 +269,7 @@ def run_benchmark(
                 else:
                     trial_log.append(record)
                     if record["error"] is None:  # recorded: its progress file is done with
-                        partial_path(run_dir, *job.key).unlink(missing_ok=True)
+                        run.partial_path(*job.key).unlink(missing_ok=True)
                 num_run += 1
                 finished += record["error"] is None
                 successes += bool(record.get("success"))
@@ -323,7 +322,7 @@ def _fail_fast_message(
 def _write_summary(
     run: RunDir, config: RunConfig, records: Records, notes: Sequence[str] = ()
 ) -> Summary:
-    """Scores the run (normalised as :func:`~vp2.benchmark.shipped_oracle.summarize_run`
+    """Scores the run (normalised as :func:`~vp2.oracle.shipped.summarize_run`
     does it: by the shipped oracle's table of the run's planner samples) and writes
     ``summary.json`` and ``summary.md`` (``notes``: warnings to add)."""
     is_oracle = is_oracle_config(config.to_dict())

@@ -7,12 +7,12 @@ cache of simulators; :func:`run_job` then runs one trial and returns its record,
 trial ends. Workers never write files: records stream back to the driver.
 
 A trial attempt that runs past ``RunConfig.trial_timeout`` is stopped by a ``SIGALRM`` timer
-(:func:`vp2.benchmark.trial.time_limit`), which needs the main thread: pool workers and Ray
+(:func:`vp2.run.trial.time_limit`), which needs the main thread: pool workers and Ray
 actors run trials there, and a driver that runs them itself (one worker) must be its
 process's main thread. After a timeout the worker rebuilds the environment's model and its
 simulators, which the interrupted trial may have left midway.
 
-The one file a worker writes is its trial's progress (:mod:`vp2.benchmark.partial`,
+The one file a worker writes is its trial's progress (:mod:`vp2.run.partial`,
 ``<run>/partial/``), so that a run cut off mid-trial resumes at the step it reached; the
 driver deletes it once the trial's record is written. (On Ray the file lives on the worker's
 machine: a trial resumes mid-way where the run directory is shared.)
@@ -31,25 +31,26 @@ from typing import Any
 import torch
 
 import vp2
-from vp2.benchmark.config import RunConfig
-from vp2.benchmark.model_spec import MODEL_DOCS, model_identity, resolve_model
-from vp2.benchmark.partial import (
-    PartialMismatch,
-    PartialTrial,
-    load_partial,
-    partial_path,
-    save_partial,
-)
-from vp2.benchmark.results import TrialKey
-from vp2.benchmark.trial import ControlTrial, TrialResult, TrialTimeout, can_time_limit, time_limit
 from vp2.data.suite import TaskInstance
 from vp2.envs import env_class, split_name
 from vp2.envs.base import Env
 from vp2.envs.cache import EnvCache
 from vp2.envs.render_specs import render_fingerprint
 from vp2.models.contract import gradient_problem, model_failure
+from vp2.models.ensemble import EnsembleMismatch
 from vp2.planning.agent import Agent, PlanningAgent, RandomActions
 from vp2.planning.planner import GRADIENT_OPTIMIZERS
+from vp2.run.config import RunConfig
+from vp2.run.model_spec import MODEL_DOCS, model_identity, resolve_model
+from vp2.run.partial import (
+    PartialMismatch,
+    PartialTrial,
+    load_partial,
+    save_partial,
+)
+from vp2.run.results import TrialKey
+from vp2.run.run_dir import RunDir
+from vp2.run.trial import ControlTrial, TrialResult, TrialTimeout, can_time_limit, time_limit
 from vp2.utils.tensors import resolve_device
 
 log = logging.getLogger(__name__)
@@ -271,7 +272,8 @@ def _attempt_trial(job: Job) -> Outcome:
     try:
         _STATE.prepare()
     except Exception as exc:
-        where = "model_check" if isinstance(exc, ModelMismatch) else "model_build"
+        mismatch = isinstance(exc, (ModelMismatch, EnsembleMismatch))
+        where = "model_check" if mismatch else "model_build"
         record = {**_base_record(job, fallback_identity), "success": None}
         return Outcome(job.key, {**record, "error": error_record(exc, where)}, fatal=True)
     try:
@@ -286,7 +288,7 @@ def _attempt_trial(job: Job) -> Outcome:
         record = {**_base_record(job, fallback_identity), "success": None}
         return Outcome(job.key, {**record, "error": error_record(exc, "model_build")}, fatal=True)
     record = _base_record(job, identity)
-    partial_file = partial_path(cfg.out, *job.key)
+    partial_file = RunDir(cfg.out).partial_path(*job.key)
     trial_meta = {key: record[key] for key in ("model", "vp2_version", "render_fingerprint")}
 
     def make_trial(resume: PartialTrial | None) -> ControlTrial:

@@ -165,7 +165,14 @@ class FrameClassifierModule(nn.Module):
     ``images (M, 3, H, W)`` float in [0, 1] -> success logits ``(M,)``. Frames of another size
     are resized to the network's training size (area average down, bilinear up); inputs are made
     contiguous (a channels-last view changes convolution rounding on the CPU).
+
+    :meth:`exact_logits` gives logits that are the same bits on every CPU
+    (:mod:`vp2.classifiers.exact`); the simulator oracle's planning cost calls it.
     """
+
+    #: Frames per chunk of :meth:`exact_logits` (bounds the float64 ``unfold`` buffers: about
+    #: 60 MB at 256 frames of 64x64 for ours).
+    exact_chunk = 256
 
     def __init__(self, network: nn.Module, task: str, meta: dict[str, Any]) -> None:
         super().__init__()
@@ -187,3 +194,24 @@ class FrameClassifierModule(nn.Module):
             else:
                 images = F.interpolate(images, size=size, mode="bilinear", align_corners=False)
         return self.network(images.contiguous())  # (M,)
+
+    def exact_logits(self, images: Tensor) -> Tensor:
+        """The logits ``(M,)`` float32 computed so that they are the same bits on every CPU
+        and device (:func:`vp2.classifiers.exact.exact_network`); within about ``1e-6`` of
+        :meth:`forward`. Frames must be of the network's size or a multiple of it."""
+        from vp2.classifiers.exact import box_downsample, exact_network
+
+        if images.ndim != 4 or images.shape[1] != 3:
+            raise ValueError(
+                f"{self.task} classifier: images must have shape (M, 3, H, W), "
+                f"got {tuple(images.shape)}"
+            )
+        exact = self.__dict__.get("_exact")  # not a submodule: the state dict stays the same
+        if exact is None or next(exact.buffers()).device != images.device:
+            exact = self.__dict__["_exact"] = exact_network(self.network).to(images.device)
+        x = images.detach().double()
+        if x.shape[-2:] != (self.image_size, self.image_size):
+            x = box_downsample(x, self.image_size)
+        with torch.no_grad():
+            out = [exact(chunk) for chunk in x.split(self.exact_chunk)]
+        return torch.cat(out).float()  # (M,)

@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vp2.benchmark.diagnose import REPORT_FILE, DiagnoseConfig
-from vp2.benchmark.model_spec import parse_model_args
 from vp2.cli._fields import Flag, add_flags, build
 from vp2.cli.metrics import model_slug
+from vp2.diagnose.model import DiagnoseConfig
+from vp2.run.model_spec import ENSEMBLE_PREFIX, ModelSpec, parse_model_args
+from vp2.run.run_dir import DIAGNOSIS_FILE, DIAGNOSIS_PARTIAL_SUFFIX, diagnosis_partial_path
 
 NAME = "diagnose"
 HELP = "whether a model can plan, in minutes: action conditioning, its cost's ranking (docs/diagnose.md)"
@@ -21,12 +22,12 @@ DESCRIPTION = (
     "verdict per measure and writes a JSON report (docs/diagnose.md)."
 )
 
-#: One entry per :class:`~vp2.benchmark.diagnose.DiagnoseConfig` field, and ``--out``.
+#: One entry per :class:`~vp2.diagnose.model.DiagnoseConfig` field, and ``--out``.
 FLAGS: dict[str, Flag | None] = {
     "model": Flag(
         required=True,
         help="model spec, as vp2 run takes it: simulator | repeat_last_frame | NAME:CHECKPOINT | "
-        "package.module:factory | file.yaml",
+        "zoo:NAME | package.module:factory | file.yaml (an ensemble(...): diagnose each member)",
     ),
     "env": Flag(
         choices=["robodesk", "tabletop"],
@@ -63,16 +64,16 @@ FLAGS: dict[str, Flag | None] = {
         metavar="FILE",
         default=None,
         cli_only=True,
-        help=f"report JSON (default: runs/diagnose/<model-slug>-<env>/{REPORT_FILE}); the "
-        "measurements of an unfinished diagnosis wait beside it in <name>.partial.json, and "
-        "re-running the same command goes on from them",
+        help=f"report JSON (default: runs/diagnose/<model-slug>-<env>/{DIAGNOSIS_FILE}); the "
+        f"measurements of an unfinished diagnosis wait beside it in "
+        f"<name>{DIAGNOSIS_PARTIAL_SUFFIX}, and re-running the same command goes on from them",
     ),
 }
 
 
 def default_out(spec: str, env: str) -> Path:
     """``runs/diagnose/<model-slug>-<env>/diagnose.json``."""
-    return Path("runs") / "diagnose" / f"{model_slug(spec)}-{env}" / REPORT_FILE
+    return Path("runs") / "diagnose" / f"{model_slug(spec)}-{env}" / DIAGNOSIS_FILE
 
 
 def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -83,7 +84,7 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 def run_from_args(args: argparse.Namespace) -> int:
     """Runs ``vp2 diagnose``: prints a line per measure and writes the report."""
-    from vp2.benchmark.diagnose import (
+    from vp2.diagnose.model import (
         diagnose_env,
         diagnose_model,
         format_report,
@@ -93,8 +94,14 @@ def run_from_args(args: argparse.Namespace) -> int:
 
     config = build(DiagnoseConfig, args, FLAGS)
     config.validate()
+    if config.model.startswith(ENSEMBLE_PREFIX):
+        members = ModelSpec.parse(config.model).members
+        raise ValueError(
+            f"model {config.model!r}: an ensemble is not diagnosed as one model; diagnose each "
+            f"member on its own ({', '.join(f'--model {m.text}' for m in members)})"
+        )
     out = report_path(args.out or default_out(config.model, diagnose_env(config)[0]))
-    partial = partial_path(out)
+    partial = diagnosis_partial_path(out)
     report = diagnose_model(config, partial=partial)
     write_report(out, report)
     partial.unlink(missing_ok=True)
@@ -102,8 +109,3 @@ def run_from_args(args: argparse.Namespace) -> int:
     print(f"wrote {out}")
     return 0
 
-
-def partial_path(report: Path) -> Path:
-    """Where ``vp2 diagnose`` keeps the measurements of an unfinished diagnosis: beside its
-    report, ``<report stem>.partial.json`` (deleted once the report is written)."""
-    return report.with_name(f"{report.stem}.partial.json")

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from vp2.report.page import DEFAULT_TRIALS_PER_TASK, write_report
+from vp2.run.run_dir import REPORT_FILE
 
 NAME = "report"
 HELP = "self-contained HTML report of one or more runs"
@@ -21,7 +22,7 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument(
         "--out",
         type=Path,
-        default=Path("report.html"),
+        default=Path(REPORT_FILE),
         metavar="FILE",
         help="HTML file (default: %(default)s)",
     )

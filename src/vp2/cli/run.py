@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 
-from vp2.benchmark.config import AGENTS, RunConfig
-from vp2.benchmark.model_spec import parse_model_args
 from vp2.cli._common import executor_flags
 from vp2.cli._fields import NOT_A_FLAG, Flag, add_flags, build
+from vp2.run.config import AGENTS, RunConfig
+from vp2.run.model_spec import parse_model_args
 
 NAME = "run"
 HELP = "evaluate a model by planning with it on the task suite (docs/evaluation.md)"
@@ -18,15 +18,19 @@ DESCRIPTION = (
 
 
 RUN_OPTIMIZERS = ["mppi", "cem", "cem_gd", "lbfgs"]
+#: The argument group of the settings only some optimizers read (a run that sets one its
+#: optimizer does not read is refused, ``vp2.planning.planner.check_optimizer_fields``).
+PLANNER_GROUP = "settings of cem, cem_gd and lbfgs (default: the optimizer's own)"
 
-#: One entry per :class:`~vp2.benchmark.config.RunConfig` field (the planner's nested ones as
+#: One entry per :class:`~vp2.run.config.RunConfig` field (the planner's nested ones as
 #: ``planner.*``), in the order of ``vp2 run --help``. Literal choices: listing the
 #: optimizers and cost modes from the planner would import torch.
 FLAGS: dict[str, Flag | None] = {
     "model": Flag(
-        help="model spec: simulator | repeat_last_frame | NAME:CHECKPOINT | zoo:NAME (vp2 zoo list) | package.module:factory "
-        "| file.yaml (with _target_); modules are also looked up in the current directory "
-        "(docs/evaluation.md, 'Plugins')"
+        help="model spec: simulator | repeat_last_frame | NAME:CHECKPOINT | zoo:NAME (vp2 zoo "
+        "list) | package.module:factory | file.yaml (with _target_) | 'ensemble(SPEC,SPEC,...)' "
+        "(two or more of these, planned with the SPEC's ensemble cost; quote it in a shell); "
+        "modules are also looked up in the current directory (docs/evaluation.md, 'Plugins')"
     ),
     "out": Flag(required=True, help="run directory"),
     "model_args": Flag(
@@ -46,7 +50,19 @@ FLAGS: dict[str, Flag | None] = {
     "planner.optimizer": Flag(choices=RUN_OPTIMIZERS),
     "planner.num_samples": Flag(help="planner samples (default: SPEC, 200/800)"),
     "planner.gamma": Flag(help="MPPI inverse temperature"),
-    "planner.num_iterations": Flag(help="planner iterations per step"),
+    "planner.num_iterations": Flag(
+        help="planner iterations per step (default: the optimizer's: mppi 1, cem and cem_gd 3)"
+    ),
+    **{f"planner.{field}": Flag(group=PLANNER_GROUP, help=text) for field, text in {
+        "num_elites": "cem, cem_gd: samples the distribution is refitted to (default 10)",
+        "num_samples_first": "cem_gd: samples per CEM iteration on a trial's first planning step "
+                             "(default 500; --num-samples sets the later steps', default 50)",
+        "num_refined": "cem_gd: best CEM samples refined by gradient steps (default 1)",
+        "lr": "cem_gd: Adam step size of the refinement (default 0.01); lbfgs: step length "
+              "(default 0.05; the paper tuned 0.001, 0.01, 0.05, 0.07)",
+        "grad_steps": "cem_gd: most accepted gradient steps per refined sequence (default 15); "
+                      "lbfgs: LBFGS.step calls per planning step (default 100)",
+    }.items()},
     "planner.sigma": NOT_A_FLAG,
     "planner.options": NOT_A_FLAG,
     "cost": Flag(choices=["auto", "spec", "pixel_only"]),

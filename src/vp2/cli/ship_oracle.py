@@ -6,7 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vp2.benchmark.ship_oracle import (
+from vp2.oracle.build import (
+    META_FILE,
     RESULTS_DIR,
     asset_text,
     build_asset,
@@ -14,18 +15,19 @@ from vp2.benchmark.ship_oracle import (
     write_oracle_asset,
     write_table,
 )
-from vp2.benchmark.shipped_oracle import (
+from vp2.oracle.shipped import (
     ASSET_FILE,
     default_asset_path,
     load_shipped_oracle,
     parse_asset,
 )
+from vp2.run.run_dir import TRIALS_FILE
 
 NAME = "ship-oracle"
 HELP = "build the shipped oracle's tables (the default normaliser) from simulator-oracle runs"
 DESCRIPTION = (
     "With RUN_DIRs (finished simulator-oracle runs at one planner budget): writes the table's "
-    f"evidence to RESULTS/NAME (meta.json, trials.jsonl), then rebuilds vp2/assets/{ASSET_FILE} "
+    f"evidence to RESULTS/NAME ({META_FILE}, {TRIALS_FILE}), then rebuilds vp2/assets/{ASSET_FILE} "
     "from every table under RESULTS. Without RUN_DIRs (or with --from-results): only rebuilds "
     "the asset from RESULTS, byte for byte the same from the same files. vp2 run, main and "
     "report normalise each task by the table of the run's planner samples "

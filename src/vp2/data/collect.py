@@ -118,9 +118,13 @@ def trajectory_seed(seed: int, stream: str, stream_index: int) -> int:
     return int(ss.generate_state(1, np.uint32)[0])
 
 
-def chunk_plan(config: CollectionConfig) -> list[dict[str, Any]]:
-    """The shards of a collection: ``[{"chunk": c, "first": i0, "count": n}, ...]``."""
+def chunk_plan(config: CollectionConfig, indices: Sequence[int] | None = None) -> list[dict[str, Any]]:
+    """The shards of a collection: ``[{"chunk": c, "first": i0, "count": n}, ...]``; with
+    ``indices``, one shard per listed trajectory, numbered by its index (shard ``i`` holds
+    trajectory ``i``)."""
     total = config.total
+    if indices is not None:
+        return [{"chunk": i, "first": i, "count": 1} for i in indices]
     return [
         {"chunk": c, "first": start, "count": min(config.chunk_size, total - start)}
         for c, start in enumerate(range(0, total, config.chunk_size))
@@ -270,7 +274,9 @@ class ChunkProgress:
                 thread.join()
 
 
-def _check_existing(root: Path, config: CollectionConfig) -> dict[str, Any] | None:
+def _check_existing(
+    root: Path, config: CollectionConfig, indices: list[int] | None = None
+) -> dict[str, Any] | None:
     path = root / storage.MANIFEST
     if not path.exists():
         if root.exists() and any(root.iterdir()):
@@ -292,6 +298,12 @@ def _check_existing(root: Path, config: CollectionConfig) -> dict[str, Any] | No
             f"{root} holds a dataset collected with different settings ({detail}). "
             "Use another --out, or delete it to start over."
         )
+    if manifest.get("indices") != indices:
+        held = "all trajectories" if manifest.get("indices") is None else "a subset of trajectories"
+        raise FileExistsError(
+            f"{root} holds {held} of this collection, not the ones requested. Use another "
+            "--out, or delete it to start over."
+        )
     return manifest
 
 
@@ -301,6 +313,7 @@ def collect(
     workers: int | None = None,
     progress: bool = True,
     executor: Executor | None = None,
+    indices: Sequence[int] | None = None,
 ) -> Path:
     """Collects (or completes) a dataset; returns its directory.
 
@@ -313,16 +326,29 @@ def collect(
         executor: where chunks run (:mod:`vp2.utils.executors`; default: a
             :class:`~vp2.utils.executors.LocalExecutor` with ``workers``). This process
             alone writes the shards, whichever executor ran them.
+        indices: collect only these trajectories of the dataset ``config`` describes (each
+            the very trajectory the whole collection holds at that index, in its split), one
+            shard each; the manifest lists them under ``indices``. ``vp2 diagnose`` collects
+            a default dataset's validation trajectories this way
+            (:mod:`vp2.data.held_out`).
     """
     config.validate()
     root = Path(out)
-    _check_existing(root, config)
+    if indices is not None:
+        indices = sorted({int(i) for i in indices})
+        if not indices or indices[0] < 0 or indices[-1] >= config.total:
+            raise ValueError(
+                f"indices must name trajectories 0..{config.total - 1} of the collection, "
+                f"got {indices[:1] + indices[-1:] if indices else 'none'}"
+            )
+    _check_existing(root, config, indices)
     root.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(root / storage.SHARD_DIR) if (root / storage.SHARD_DIR).exists() else None
-    plan = chunk_plan(config)
+    plan = chunk_plan(config, indices)
     manifest = {
         "format": storage.FORMAT,
         "config": config.to_json(),
+        **({} if indices is None else {"indices": indices}),
         "chunks": plan,
         "complete": False,
     }
@@ -341,11 +367,12 @@ def collect(
         todo.append(chunk)
 
     executor = LocalExecutor(workers) if executor is None else executor
-    done_before = config.total - sum(c["count"] for c in todo)
+    total = sum(c["count"] for c in plan)
+    done_before = total - sum(c["count"] for c in todo)
     config_json = config.to_json()
     start = time.perf_counter()
     with tqdm(
-        total=config.total, initial=done_before, unit="traj", desc=f"collect {config.env}",
+        total=total, initial=done_before, unit="traj", desc=f"collect {config.env}",
         disable=not progress, smoothing=0.1,
     ) as bar:
         env_meta = {"env": config.env, "collection": config_json}

@@ -7,7 +7,7 @@ from the :class:`~vp2.envs.tabletop_scene.TabletopScene`, the default scene unle
 given), and :data:`~vp2.envs.rendering.RENDER_PATH_VERSION`. A shipped oracle
 table records the fingerprint of every environment it ran on, and a run is normalised by a
 table only where its environment's fingerprint is this package's
-(:mod:`vp2.benchmark.shipped_oracle`): an oracle that planned on other images measured another
+(:mod:`vp2.oracle.shipped`): an oracle that planned on other images measured another
 benchmark.
 
 Computing it builds no environment: it reads the RoboDesk module's constant (importing it) and

@@ -78,7 +78,7 @@ def _build_model(
         model = model_spec
         identity = {"spec": None, "name": getattr(model, "name", type(model).__name__)}
     else:
-        from vp2.benchmark.model_spec import model_identity, resolve_model
+        from vp2.run.model_spec import model_identity, resolve_model
 
         model = resolve_model(
             model_spec, model_args, env=env or "", action_dim=dataset.action_dim, device=device

@@ -386,10 +386,14 @@ def gradient_problem(model: VideoPredictionModel, device: str | torch.device = "
     """Why ``model`` cannot give gradients of its predictions with respect to the actions,
     or ``None`` if it can (what the gradient-based planners ``cem_gd`` and ``lbfgs`` need).
 
-    A model may say so itself with ``differentiable = False``; otherwise one batch-1
+    A model may say so itself with ``differentiable = False``, or answer itself with a
+    ``gradient_problem(device)`` method (an ensemble asks each member); otherwise one batch-1
     ``predict`` call with ``grad=True`` on grey frames and zero actions (on ``device``) must
     return frames whose gradient reaches the actions.
     """
+    own = getattr(unwrap(model), "gradient_problem", None)
+    if callable(own):
+        return own(device)
     model = checked(model)
     if getattr(model, "differentiable", None) is False:
         return "declares differentiable = False"

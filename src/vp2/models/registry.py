@@ -8,7 +8,7 @@ field overrides of its config dataclass. Presets live here, in one place::
     model = load_model_spec("svg_prime:runs/svg")       # the runner's --model syntax
 
 The checkpoint format is :mod:`vp2.models.checkpoint`; :class:`CheckpointSpec` is the
-``NAME:CHECKPOINT`` form of ``--model`` (:class:`vp2.benchmark.model_spec.ModelSpec`).
+``NAME:CHECKPOINT`` form of ``--model`` (:class:`vp2.run.model_spec.ModelSpec`).
 """
 
 from __future__ import annotations

@@ -26,8 +26,7 @@ registry, which the samplers, optimizers and costs do without (:func:`build_cost
 classifier registry when it first needs a classifier).
 """
 
-import importlib
-from typing import Any
+from vp2.utils.lazy import lazy_exports
 
 #: Where each name lives; every one is imported on first use.
 _LAZY_MODULES: dict[str, list[str]] = {
@@ -49,14 +48,7 @@ _LAZY_MODULES: dict[str, list[str]] = {
         "GRADIENT_OPTIMIZERS build_optimizer planner_settings"
     ).split(),
 }
-_LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(_LAZY[name]), name)
-
+__getattr__, __dir__, _ = lazy_exports(__name__, _LAZY_MODULES)
 
 __all__ = [
     "CEM",

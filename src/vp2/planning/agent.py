@@ -10,12 +10,19 @@ and lets the optimizer (MPPI by default) maximise it, warm-started from its prev
 shifted by one step. The optimizer knows nothing about the model; the model knows nothing
 about the cost. The cost and the optimizer of a task come from :mod:`vp2.planning.planner`.
 
+With an ensemble (:class:`vp2.models.ensemble.EnsembleModel`) every member predicts the
+candidates and the score is SPEC §5's: a randomly chosen member's score minus
+``λ · max_i ‖Iⁱ − mean‖₁`` (:class:`~vp2.planning.costs.EnsembleCost`, a member drawn per
+sample from a generator seeded by the trial seed); the trial record names the members and, per
+planning step, how often each was drawn and which one scored the best sample.
+
 :class:`RandomActions` is the baseline agent without a model: uniform random actions.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
@@ -25,7 +32,14 @@ from torch import Tensor
 
 from vp2.classifiers.registry import CLASSIFIERS, ClassifierRegistry
 from vp2.models.contract import VideoPredictionModel, checked, predict_in_chunks, unwrap
-from vp2.planning.costs import COST_MODES, CostMode, build_cost
+from vp2.models.ensemble import as_ensemble
+from vp2.planning.costs import (
+    COST_MODES,
+    ENSEMBLE_DISAGREEMENT_WEIGHT,
+    CostMode,
+    EnsembleCost,
+    build_cost,
+)
 from vp2.planning.optimizers import shift_plan
 from vp2.planning.planner import PlannerConfig, build_optimizer, planner_settings
 from vp2.utils.tensors import images_to_float
@@ -53,7 +67,7 @@ class Observation:
 
 @runtime_checkable
 class Agent(Protocol):
-    """What a :class:`vp2.benchmark.trial.ControlTrial` drives.
+    """What a :class:`vp2.run.trial.ControlTrial` drives.
 
     Attributes:
         name: Identity in results (``"planning"``, ``"random_actions"``).
@@ -129,7 +143,7 @@ def _model_device(model: Any) -> torch.device | None:
 class PlanningAgent:
     """Visual-foresight agent: replans with the model and optimizer at every control step.
 
-    Called by :class:`vp2.benchmark.trial.ControlTrial`: :meth:`reset` at the start of a
+    Called by :class:`vp2.run.trial.ControlTrial`: :meth:`reset` at the start of a
     trial, then :meth:`act` at every control step after the first (the trial executes the
     zero action first, so that two context frames exist).
 
@@ -177,11 +191,22 @@ class PlanningAgent:
         self._task: str | None = None
         self._settings: dict[str, Any] = {}
         self._classifier: dict[str, Any] = {}
+        #: The ensemble the model is, else ``None``; then, per trial, its cost and per step
+        #: what its member draws were (``describe()["ensemble"]["steps"]``).
+        self.ensemble = as_ensemble(self.model)
+        self._ensemble_steps: list[dict[str, Any]] = []
 
     def describe(self) -> dict[str, Any]:
         out = {"agent": self.name, "planner": self._settings, "cost": self.cost_kind}
         if self._classifier:
             out["classifier"] = self._classifier
+        if self.ensemble is not None:
+            out["ensemble"] = {
+                "members": list(self.ensemble.labels),
+                "lam": ENSEMBLE_DISAGREEMENT_WEIGHT,
+                "member_choice": "per sample, from the trial seed's fourth stream",
+                "steps": list(self._ensemble_steps),
+            }
         return out
 
     def reset(self, task: str, goal_image: np.ndarray, seed: int) -> None:
@@ -191,8 +216,12 @@ class PlanningAgent:
         self.optimizer = build_optimizer(task, self.planner)
         self.optimizer.reset()
         goal = frames_to_tensor(goal_image, self.device)  # (3, H, W)
+        # The oracle's plans must be the same bits on every CPU (its tables are measured once
+        # and replayed anywhere), so its classifier runs the exact arithmetic; a learned model's
+        # predictions already differ per CPU and keep the faster float32 inference.
+        exact = bool(getattr(self.model, "needs_simulator_state", False))
         self.cost, self.cost_kind = build_cost(
-            task, goal, self.cost_mode, self.classifiers, self.device
+            task, goal, self.cost_mode, self.classifiers, self.device, exact=exact
         )
         # The classifier's provenance and its weight in the cost (one weight per task,
         # SPEC §6), so that a record (and an oracle table built from records) names both.
@@ -204,10 +233,18 @@ class PlanningAgent:
         )
         # Independent streams: the planner's samples must not shift when the model draws more
         # or less noise, and recording predictions must not change the plans.
-        planner_seed, model_seed, record_seed = np.random.SeedSequence(seed).generate_state(3)
-        self.generator = torch.Generator().manual_seed(int(planner_seed))
-        self.model_generator = torch.Generator().manual_seed(int(model_seed))
-        self._record_seed = int(record_seed)
+        # (The first three words do not depend on how many are drawn: a fourth, the ensemble's
+        # member choice, leaves single models' streams as they were.)
+        streams = np.random.SeedSequence(seed).generate_state(4)
+        planner_seed, model_seed, record_seed, ensemble_seed = (int(x) for x in streams)
+        self.generator = torch.Generator().manual_seed(planner_seed)
+        self.model_generator = torch.Generator().manual_seed(model_seed)
+        self._record_seed = record_seed
+        if self.ensemble is not None:
+            self.ensemble_generator = torch.Generator().manual_seed(ensemble_seed)
+            self.ensemble_cost = EnsembleCost(self.cost, self.ensemble_generator)
+            self._ensemble_steps = []
+            self._new_ensemble_step()
         self.plan = torch.zeros(self.horizon, self.action_dim, device=self.device)  # (H, A)
 
     def objective(self, context: Tensor, last_action: Tensor) -> Callable[[Tensor], Tensor]:
@@ -218,7 +255,9 @@ class PlanningAgent:
             last_action: ``(A,)`` the last executed action.
 
         Returns:
-            ``candidates (N, T, A) -> scores (N,)``.
+            ``candidates (N, T, A) -> scores (N,)``: ``-cost(predictions)``; for an ensemble
+            ``-(cost(Iᵐ) + λ · max_i ‖Iⁱ − mean‖₁)`` with ``m`` drawn per candidate
+            (:meth:`_ensemble_scores`).
         """
 
         def objective(candidates: Tensor) -> Tensor:
@@ -226,12 +265,40 @@ class PlanningAgent:
             frames = context.expand(n, *context.shape)  # (N, C, 3, H, W)
             previous = last_action.to(candidates).expand(n, 1, -1)  # (N, 1, A)
             actions = torch.cat([previous, candidates], dim=1)  # (N, C - 1 + T, A)
+            if self.ensemble is not None:
+                return self._ensemble_scores(frames, actions.float()).to(candidates.dtype)
             predicted = predict_in_chunks(
                 self.model, frames, actions.float(), generator=self.model_generator
             )  # (N, T, 3, H, W)
             return self.cost.score(predicted.to(self.device)).to(candidates.dtype)  # (N,)
 
         return objective
+
+    def _new_ensemble_step(self) -> None:
+        """Starts counting a planning step's member draws (and its best sample's member)."""
+        assert self.ensemble is not None
+        self._ensemble_step: dict[str, Any] = {
+            "draws": torch.zeros(len(self.ensemble.members), dtype=torch.long),
+            "best_score": -math.inf,
+            "best_member": None,
+        }
+
+    def _ensemble_scores(self, frames: Tensor, actions: Tensor) -> Tensor:
+        """``(N,)`` SPEC §5 ensemble scores of the candidates; counts the step's member draws."""
+        assert self.ensemble is not None
+        predicted = self.ensemble.predict_members(
+            frames, actions, generator=self.model_generator
+        )  # (M, N, T, 3, H, W)
+        scores = self.ensemble_cost.score(predicted.to(self.device))  # (N,)
+        members = self.ensemble_cost.last_members
+        assert members is not None
+        step = self._ensemble_step
+        step["draws"] += torch.bincount(members.cpu(), minlength=len(self.ensemble.members))
+        best = int(torch.argmax(scores.detach()))
+        if float(scores[best].detach()) > step["best_score"]:
+            step["best_score"] = float(scores[best].detach())
+            step["best_member"] = int(members[best])
+        return scores
 
     def act(self, observation: Observation) -> tuple[np.ndarray, dict[str, Any]]:
         """Plans one step; returns the first action of the plan and the optimizer's report."""
@@ -249,8 +316,15 @@ class PlanningAgent:
             observation.last_action, dtype=torch.float32, device=self.device
         )
         objective = self.objective(context, last_action)
+        if self.ensemble is not None:
+            self._new_ensemble_step()
         plan, report = self.optimizer.optimize(objective, self.plan, self.generator)  # (T, A)
         plan = plan.detach()
+        if self.ensemble is not None:
+            step = self._ensemble_step
+            self._ensemble_steps.append(
+                {"draws": step["draws"].tolist(), "best_member": step["best_member"]}
+            )
         info: dict[str, Any] = {
             "best_score": report.best_score,
             "plan_score": report.plan_score,
@@ -265,19 +339,27 @@ class PlanningAgent:
     def trial_state(self) -> dict[str, Any]:
         """What the agent carries from one control step to the next: the warm-start plan, the
         states of its generators and the optimizer's (for a trial resumed mid-way,
-        :mod:`vp2.benchmark.partial`)."""
-        return {
+        :mod:`vp2.run.partial`)."""
+        state = {
             "plan": self.plan.detach().cpu().numpy(),
             "generator": self.generator.get_state().numpy(),
             "model_generator": self.model_generator.get_state().numpy(),
             "optimizer": self.optimizer.trial_state(),
         }
+        if self.ensemble is not None:
+            state["ensemble_generator"] = self.ensemble_generator.get_state().numpy()
+            state["ensemble_steps"] = list(self._ensemble_steps)
+        return state
 
     def load_trial_state(self, state: dict[str, Any]) -> None:
         """Restores what :meth:`trial_state` returned (after :meth:`reset` for the trial)."""
         self.plan = torch.as_tensor(np.asarray(state["plan"]), dtype=self.plan.dtype,
                                     device=self.device)
-        for name in ("generator", "model_generator"):
+        names = ["generator", "model_generator"]
+        if self.ensemble is not None:
+            names.append("ensemble_generator")
+            self._ensemble_steps = list(state["ensemble_steps"])
+        for name in names:
             getattr(self, name).set_state(torch.from_numpy(np.asarray(state[name], np.uint8)))
         self.optimizer.load_trial_state(state["optimizer"])
 

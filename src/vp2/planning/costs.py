@@ -32,6 +32,7 @@ from torch import Tensor
 
 from vp2 import spec
 from vp2.envs.tasks import get_task
+from vp2.utils.fixedsum import fixed_sum
 
 if TYPE_CHECKING:
     from vp2.classifiers.registry import ClassifierRegistry
@@ -43,8 +44,8 @@ FrameClassifier = Callable[[Tensor], Tensor]
 #: ``distance(images (M, C, H, W), goals (M, C, H, W)) -> distances (M,)`` (e.g. LPIPS).
 PerceptualDistance = Callable[[Tensor, Tensor], Tensor]
 
-#: Ensemble disagreement weight λ of SPEC §5.
-ENSEMBLE_DISAGREEMENT_WEIGHT = 0.01
+#: Ensemble disagreement weight λ of SPEC §5 (:data:`vp2.spec.ENSEMBLE_DISAGREEMENT_WEIGHT`).
+ENSEMBLE_DISAGREEMENT_WEIGHT = spec.ENSEMBLE_DISAGREEMENT_WEIGHT
 
 #: Values per block of the CPU pixel error (about 4 MB of float32, a cache-sized block).
 _CPU_BLOCK_VALUES = 1 << 20
@@ -83,16 +84,18 @@ def pixel_sse(frames: Tensor, goal: Tensor) -> Tensor:
     _check_frames(frames)
     goal = _goal_for(goal, frames)  # (1, T or 1, C, H, W)
     # On a CPU, a full-batch difference (100 MB for 200 x 10 frames of 64x64) is written to and
-    # read back from memory; blocks of about a million values stay in cache and run ~5x faster.
+    # read back from memory; blocks of about a million values stay in cache and run faster.
     # A GPU prefers one large kernel. Either way the difference is formed explicitly: expanding
     # the square (sum f^2 - 2 f.g + sum g^2) is faster still but cancels catastrophically in
-    # float32 exactly where it matters, close to the goal.
+    # float32 exactly where it matters, close to the goal. The squares are added pairwise in an
+    # order fixed by the frame size (fixed_sum), so a cost is the same bits on every CPU and
+    # device; torch's own reductions add in an order set by the CPU's SIMD width.
     per_sample = frames[0].numel()
     block = frames.shape[0] if frames.is_cuda else max(1, _CPU_BLOCK_VALUES // per_sample)
-    costs = [
-        torch.linalg.vector_norm((chunk - goal).flatten(1), dim=1).square()  # (block,)
-        for chunk in frames.split(block)
-    ]
+    costs = []
+    for chunk in frames.split(block):
+        diff = (chunk - goal).flatten(1)  # (block, T*C*H*W)
+        costs.append(fixed_sum(diff * diff, dim=1))  # (block,)
     return torch.cat(costs)  # (N,)
 
 
@@ -107,7 +110,7 @@ def classifier_cost(logits: Tensor) -> Tensor:
     """
     if logits.ndim != 2:
         raise ValueError(f"logits must have shape (N, T), got {tuple(logits.shape)}")
-    return -logits.sum(dim=1)
+    return -fixed_sum(logits, dim=1)
 
 
 def _per_frame(
@@ -147,16 +150,21 @@ class ClassifierCost:
     Args:
         classifier: ``images (M, C, H, W) -> logits (M,)`` (or ``(M, 1)``).
         max_batch_size: Most images per classifier call (``None``: all at once).
+        exact: Call the classifier's ``exact_logits`` (logits that are the same bits on every
+            CPU, :mod:`vp2.classifiers.exact`) instead of the classifier itself; for a
+            classifier without that method, the classifier itself (its own arithmetic decides).
     """
 
-    def __init__(self, classifier: FrameClassifier, max_batch_size: int | None = None) -> None:
-        self.classifier = classifier
-        self.max_batch_size = max_batch_size
+    def __init__(
+        self, classifier: FrameClassifier, max_batch_size: int | None = None, exact: bool = False
+    ) -> None:
+        self.classifier, self.max_batch_size, self.exact = classifier, max_batch_size, exact
 
     def __call__(self, frames: Tensor) -> Tensor:
         _check_frames(frames)
-        logits = _per_frame(self.classifier, frames, max_batch_size=self.max_batch_size)
-        return classifier_cost(logits)  # (N,)
+        fn = getattr(self.classifier, "exact_logits", self.classifier) if self.exact else (
+            self.classifier)
+        return classifier_cost(_per_frame(fn, frames, max_batch_size=self.max_batch_size))  # (N,)
 
 
 class PerceptualCost:
@@ -206,7 +214,11 @@ class WeightedCost:
         return [w * term(frames) for w, term in self.terms]
 
     def __call__(self, frames: Tensor) -> Tensor:
-        return torch.stack(self.breakdown(frames)).sum(dim=0)  # (N,)
+        parts = self.breakdown(frames)
+        total = parts[0]
+        for part in parts[1:]:  # in the terms' order, the same bits on every CPU
+            total = total + part
+        return total  # (N,)
 
     def score(self, frames: Tensor) -> Tensor:
         """The optimizer's score, ``-cost`` (higher is better)."""
@@ -246,6 +258,7 @@ def build_cost(
     mode: CostMode = "auto",
     classifiers: ClassifierRegistry | None = None,
     device: torch.device | None = None,
+    exact: bool = False,
 ) -> tuple[WeightedCost, CostKind]:
     """The planning cost of a task (SPEC §6), in the form its registry entry names, and its kind.
 
@@ -256,6 +269,8 @@ def build_cost(
         classifiers: Where classifiers are looked up (default:
             :data:`vp2.classifiers.registry.CLASSIFIERS`).
         device: Device the classifier is loaded on (default: the goal's).
+        exact: Score with the classifier's CPU-independent logits (:class:`ClassifierCost`);
+            the simulator oracle's agent sets it, learned models keep float32 inference.
 
     Returns:
         The cost and its :data:`CostKind`.
@@ -280,7 +295,7 @@ def build_cost(
     if mode != "pixel_only":
         classifier = classifiers.get(form.classifier, device or goal.device)
     if classifier is not None:
-        classifier_term = (form.classifier_weight, ClassifierCost(classifier))
+        classifier_term = (form.classifier_weight, ClassifierCost(classifier, exact=exact))
         return WeightedCost([pixel_term, classifier_term]), "pixel+classifier"
     if mode == "spec":
         raise ValueError(
@@ -339,6 +354,9 @@ class EnsembleCost:
         generator: Source of the member choice.
         lam: Disagreement weight ``λ``.
         per_sample: See :func:`choose_members`.
+
+    Attributes:
+        last_members: ``(N,)`` the members drawn by the last call (``None`` before any).
     """
 
     def __init__(
@@ -352,6 +370,7 @@ class EnsembleCost:
         self.generator = generator
         self.lam = lam
         self.per_sample = per_sample
+        self.last_members: Tensor | None = None
 
     def __call__(self, predictions: Tensor) -> Tensor:
         """Args: predictions ``(M, N, T, C, H, W)``. Returns ``(N,)`` costs."""
@@ -359,6 +378,7 @@ class EnsembleCost:
         num_members, num_samples = predictions.shape[:2]
         members = choose_members(num_members, num_samples, self.generator, self.per_sample)
         members = members.to(predictions.device)
+        self.last_members = members
         chosen = predictions[members, torch.arange(num_samples, device=predictions.device)]
         return self.term(chosen) + self.lam * penalty  # (N,)
 

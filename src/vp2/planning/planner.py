@@ -9,6 +9,7 @@ turns them into its constructor arguments (:meth:`vp2.planning.optimizers.Optimi
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from vp2 import spec
@@ -35,6 +36,7 @@ def planner_settings(task: str, config: PlannerConfig) -> dict[str, Any]:
         raise ValueError(
             f"unknown optimizer {config.optimizer!r}; choose one of {', '.join(OPTIMIZERS)}"
         )
+    check_optimizer_fields(config)
     registered = get_task(task)
     env_sigma = spec.SIGMA[registered.env]
     sigma = list(config.sigma if config.sigma is not None else env_sigma)
@@ -42,6 +44,29 @@ def planner_settings(task: str, config: PlannerConfig) -> dict[str, Any]:
         raise ValueError(f"{task}: sigma has {len(sigma)} entries, the action has {len(env_sigma)}")
     kwargs = OPTIMIZERS[config.optimizer].settings(config, sigma, registered.num_samples)
     return {"optimizer": config.optimizer, **kwargs}
+
+
+def check_optimizer_fields(config: PlannerConfig) -> None:
+    """Refuses an :data:`~vp2.planning.config.OPTIMIZER_FIELDS` setting the config's optimizer
+    does not read, or out of range (``lr > 0``, the counts ``>= 1``).
+
+    Raises:
+        ValueError: naming the setting (its ``vp2 run`` flag is the name with dashes).
+    """
+    for name, value in config.optimizer_fields().items():
+        readers = [n for n, cls in OPTIMIZERS.items() if name in cls.config_fields]
+        if name not in OPTIMIZERS[config.optimizer].config_fields:
+            raise ValueError(
+                f"planner setting {name}={value!r} is read by {' and '.join(readers)}, not by "
+                f"{config.optimizer}: drop it or plan with {' or '.join(readers)}"
+            )
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if name == "lr":
+            ok, wanted = number and 0 < value < math.inf, "a number > 0"
+        else:
+            ok, wanted = number and isinstance(value, int) and value >= 1, "an integer >= 1"
+        if not ok:
+            raise ValueError(f"planner setting {name} must be {wanted}, got {value!r}")
 
 
 def build_optimizer(task: str, config: PlannerConfig) -> Optimizer:
@@ -59,5 +84,6 @@ __all__ = [
     "PlannerConfig",
     "build_cost",
     "build_optimizer",
+    "check_optimizer_fields",
     "planner_settings",
 ]

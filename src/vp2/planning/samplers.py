@@ -16,18 +16,23 @@ per-step variance starts at ``σ²`` and decays towards ``σ² (1 - β) / (1 + �
 
 Randomness only ever comes from the ``torch.Generator`` passed in. Noise is drawn on the
 generator's device and then moved to the mean's device, so a CPU generator gives the same
-samples whether planning runs on a CPU or a GPU.
+samples whether planning runs on a CPU or a GPU. Float32 noise from a CPU generator is
+:func:`vp2.utils.fixedsum.normal_float32`, the numbers of ``torch.randn`` on any CPU (torch's
+own differ in the last bits where ATen runs its AVX2 kernels), and the AR(1) recursion
+multiplies and adds in two correctly rounded steps, so samples are the same bits on every CPU.
 """
 
 from __future__ import annotations
 
 import abc
+import math
 from collections.abc import Sequence
 
 import torch
 from torch import Tensor
 
 from vp2 import spec
+from vp2.utils.fixedsum import normal_float32
 
 ACTION_LOW = -1.0
 ACTION_HIGH = 1.0
@@ -37,11 +42,14 @@ def standard_normal(shape: Sequence[int], generator: torch.Generator, like: Tens
     """Draws ``N(0, 1)`` noise from ``generator`` with the dtype and device of ``like``.
 
     The draw happens on the generator's own device (torch requires it) and is then moved, which
-    keeps results independent of where the planner runs.
+    keeps results independent of where the planner runs. Float32 from a CPU generator goes
+    through :func:`~vp2.utils.fixedsum.normal_float32`: the same bits on every CPU.
     """
-    noise = torch.randn(
-        tuple(shape), generator=generator, device=generator.device, dtype=like.dtype
-    )
+    shape = tuple(shape)
+    if generator.device.type == "cpu" and like.dtype == torch.float32:
+        noise = normal_float32(math.prod(shape), generator).view(shape)
+    else:
+        noise = torch.randn(shape, generator=generator, device=generator.device, dtype=like.dtype)
     return noise.to(like.device)
 
 
@@ -154,9 +162,11 @@ class CorrelatedNoiseSampler(ActionSampler):
         innovation[:, 1:] *= 1 - self.beta  # the first step enters without the (1 - β) factor
         # A short loop of single-threaded element-wise ops over the horizon: the equivalent
         # (H, H) filter matrix product is faster on an idle CPU but goes through a threaded
-        # GEMM that stalls for milliseconds when the cores are shared.
+        # GEMM that stalls for milliseconds when the cores are shared. Multiply, then add:
+        # torch.add(..., alpha=β) is one fused multiply-add in ATen's vector kernels and two
+        # roundings in its scalar ones, so its last bits depend on the CPU.
         noise = torch.empty_like(innovation)
         noise[:, 0] = innovation[:, 0]
         for t in range(1, std.shape[0]):
-            torch.add(innovation[:, t], noise[:, t - 1], alpha=self.beta, out=noise[:, t])
+            torch.add(innovation[:, t], noise[:, t - 1] * self.beta, out=noise[:, t])
         return noise

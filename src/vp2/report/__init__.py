@@ -17,10 +17,11 @@ main`` hand :func:`write_run_report` to the runner. The study itself is
 ``docs/report.md``.
 """
 
-from vp2.report.page import REPORT_FILE, render_report, write_report, write_run_report
+from vp2.report.page import render_report, write_report, write_run_report
 from vp2.report.runs import RunView, load_runs
 from vp2.report.study import StudyResult, load_entry
 from vp2.report.study_output import write_study
+from vp2.run.run_dir import REPORT_FILE
 
 __all__ = [
     "REPORT_FILE",

@@ -14,10 +14,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from vp2.benchmark.results import is_ok, read_trials
-from vp2.benchmark.run_dir import CONFIG_FILE, RunDir
-from vp2.benchmark.ship_oracle import run_command
 from vp2.data.suite import SUITE_FORMAT
+from vp2.oracle.build import run_command
+from vp2.run.results import is_ok
+from vp2.run.run_dir import CONFIG_FILE, RunDir, read_trials
 
 
 def _run_settings(run_dir: Path) -> dict[str, Any]:

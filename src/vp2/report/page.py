@@ -10,7 +10,7 @@ network access. It shows
   highest control-run (seed) rate (the paper's Figure 3), and the same numbers as a table;
 * the oracle-normalised score: by a simulator-oracle run among the inputs, else by the one a
   run names in its ``oracle`` setting, else by the shipped oracle
-  (:mod:`vp2.benchmark.shipped_oracle`), with how that was measured;
+  (:mod:`vp2.oracle.shipped`), with how that was measured;
 * the metrics-versus-control study (:mod:`vp2.report.study`) when ``metrics.json`` files
   are given;
 * a gallery of trial videos per model and task (execution next to the goal image, and the
@@ -40,12 +40,11 @@ from vp2.report.sections import (
     success_chart,
     success_table,
 )
+from vp2.run.run_dir import RunDir
 from vp2.utils.io import atomic_path
 
 log = logging.getLogger(__name__)
 
-#: File name of the report inside a run directory.
-REPORT_FILE = "report.html"
 #: Trials shown per model and task in the gallery.
 DEFAULT_TRIALS_PER_TASK = 3
 #: GIF bytes embedded at most (the rest of the gallery is left out, and the page says so).
@@ -170,7 +169,7 @@ def write_run_report(run_dir: PathLike) -> None:
     ``vp2 main``. A failure is logged, not raised: the report is a view of the run's results,
     which must never be lost to it."""
     try:
-        write_report([run_dir], Path(run_dir) / REPORT_FILE)
+        write_report([run_dir], RunDir(run_dir).report_file)
     except Exception as exc:
         log.warning("could not write the HTML report of %s: %r", run_dir, exc)
 

@@ -9,11 +9,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from vp2.benchmark.config import planner_of
-from vp2.benchmark.diagnose import PRECHECK_FILE, REPORT_FILE
-from vp2.benchmark.results import Summary, summarize
-from vp2.benchmark.run_dir import RunDir
-from vp2.benchmark.shipped_oracle import is_oracle_config, load_shipped_oracle, summarize_run
+from vp2.oracle.shipped import is_oracle_config, load_shipped_oracle, summarize_run
+from vp2.run.config import planner_of
+from vp2.run.results import Summary, summarize
+from vp2.run.run_dir import RunDir
 
 PathLike = str | os.PathLike[str]
 
@@ -26,7 +25,7 @@ class RunView:
         run_dir: The directory.
         label: Model label (unique among the report's runs).
         config: The ``config`` mapping of ``config.yaml`` in the flat form, the planner's
-            fields beside the others (:meth:`~vp2.benchmark.run_dir.RunDir.settings`; empty
+            fields beside the others (:meth:`~vp2.run.run_dir.RunDir.settings`; empty
             if the file is missing).
         deviations: Its departures from the SPEC protocol.
         records: Trial records.
@@ -36,7 +35,7 @@ class RunView:
         oracle_note: Why a shipped oracle exists but normalises none of the run's tasks (no
             table at its planner samples, another render spec, ...), one line.
         outside: The note on trials in the directory that its config does not cover, which
-            are not counted (:meth:`~vp2.benchmark.run_dir.RunDir.split_trials`); ``None``:
+            are not counted (:meth:`~vp2.run.run_dir.RunDir.split_trials`); ``None``:
             none.
         diagnosis: The model's diagnosis found in the directory, one entry per environment
             (:func:`read_diagnosis`); empty when there is none.
@@ -68,8 +67,8 @@ def read_diagnosis(run_dir: PathLike) -> list[dict[str, Any]]:
     ``predicted`` and
     ``predicted_reason`` (``None`` for a pre-check).
     """
-    path = Path(run_dir)
-    full = path / REPORT_FILE
+    run = RunDir(run_dir)
+    full = run.diagnosis_file
     if full.is_file():
         report = json.loads(full.read_text())
         cond = report.get("action_conditioning") or {}
@@ -88,7 +87,7 @@ def read_diagnosis(run_dir: PathLike) -> list[dict[str, Any]]:
             "predicted": report.get("predicted_control_score"),
             "predicted_reason": report.get("predicted_control_score_reason"),
         }]  # fmt: skip
-    pre = path / PRECHECK_FILE
+    pre = run.precheck_file
     if not pre.is_file():
         return []
     out = []
@@ -129,7 +128,7 @@ def load_runs(
 
     An oracle run among ``run_dirs`` normalises every other run; otherwise a run's own
     ``oracle`` setting is used if that directory exists, else the shipped oracle's table of
-    the run's planner samples (per task, :meth:`~vp2.benchmark.shipped_oracle.ShippedOracle.
+    the run's planner samples (per task, :meth:`~vp2.oracle.shipped.ShippedOracle.
     match`).
 
     Raises:

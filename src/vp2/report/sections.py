@@ -9,10 +9,10 @@ from html import escape
 from pathlib import Path
 from typing import Any
 
-from vp2.benchmark.results import is_ok
-from vp2.benchmark.shipped_oracle import NO_SHIPPED_ORACLE
+from vp2.oracle.shipped import NO_SHIPPED_ORACLE
 from vp2.report.charts import bar_chart
 from vp2.report.runs import RunView
+from vp2.run.results import is_ok
 from vp2.utils.io import json_safe
 
 

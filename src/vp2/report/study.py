@@ -31,10 +31,10 @@ from html import escape
 from pathlib import Path
 from typing import Any
 
-from vp2.benchmark.results import is_ok, summarize
-from vp2.benchmark.run_dir import RunDir
 from vp2.report.charts import scatter_plot
 from vp2.report.correlation import Correlation, rank_correlation
+from vp2.run.results import is_ok, summarize
+from vp2.run.run_dir import RunDir
 from vp2.utils.io import json_safe
 
 #: Scope of all tasks of the study.
@@ -85,7 +85,7 @@ class StudyEntry:
         metrics: Environment (or :data:`ANY_ENV`) -> raw metric values of that ``metrics.json``.
         metrics_files: The files read.
         outside: The note on trials in the run directory that its config does not cover,
-            which are not counted (:meth:`~vp2.benchmark.run_dir.RunDir.split_trials`).
+            which are not counted (:meth:`~vp2.run.run_dir.RunDir.split_trials`).
     """
 
     label: str

@@ -8,7 +8,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import torch
 from torch import Tensor
@@ -139,7 +139,15 @@ def shift_plan(plan: Tensor, steps: int = 1, pad: Literal["repeat", "zero"] = "r
 
 
 class Optimizer(abc.ABC):
-    """Maximises a batched objective over action sequences ``(H, A)`` in ``[-1, 1]``."""
+    """Maximises a batched objective over action sequences ``(H, A)`` in ``[-1, 1]``.
+
+    Attributes:
+        config_fields: The :data:`vp2.planning.config.OPTIMIZER_FIELDS` this optimizer reads,
+            each with the constructor argument it sets (e.g. L-BFGS: ``grad_steps`` ->
+            ``num_steps``).
+    """
+
+    config_fields: ClassVar[dict[str, str]] = {}
 
     @classmethod
     def settings(
@@ -148,8 +156,9 @@ class Optimizer(abc.ABC):
         """This optimizer's constructor arguments for one task, as plain data.
 
         Called by :func:`vp2.planning.planner.planner_settings`, whose result every trial
-        record carries: the arguments of :meth:`own_settings`, then ``num_iterations`` where
-        the config sets it, then the config's ``options`` (which override).
+        record carries: the arguments of :meth:`own_settings`, then those of
+        :attr:`config_fields` and ``num_iterations`` where the config sets them, then the
+        config's ``options`` (which override).
 
         Args:
             config: The run's planner.
@@ -157,6 +166,9 @@ class Optimizer(abc.ABC):
             num_samples: The task's planner sample count (``Task.num_samples``).
         """
         kwargs = cls.own_settings(config, sigma, num_samples)
+        for name, argument in cls.config_fields.items():
+            if getattr(config, name) is not None:
+                kwargs[argument] = getattr(config, name)
         if config.num_iterations is not None:
             kwargs["num_iterations"] = config.num_iterations
         kwargs.update(config.options)
@@ -195,7 +207,7 @@ class Optimizer(abc.ABC):
 
     def trial_state(self) -> dict[str, Any]:
         """The per-trial state carried between planning steps (JSON-able), for a trial resumed
-        mid-way (:mod:`vp2.benchmark.partial`); stateless optimizers have none."""
+        mid-way (:mod:`vp2.run.partial`); stateless optimizers have none."""
         return {}
 
     def load_trial_state(self, state: dict[str, Any]) -> None:  # noqa: B027 -- stateless default

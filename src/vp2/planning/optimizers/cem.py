@@ -53,6 +53,8 @@ class CEM(SamplingOptimizer):
         sampler: Noise process; defaults to :class:`CorrelatedNoiseSampler` with ``β = 0.5``.
     """
 
+    config_fields = {"num_elites": "num_elites"}
+
     def __init__(
         self,
         sigma: Sequence[float] | Tensor,

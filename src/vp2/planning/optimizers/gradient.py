@@ -59,6 +59,14 @@ class CEMGD(CEM):
         sampler: CEM noise process; defaults to :class:`CorrelatedNoiseSampler`.
     """
 
+    config_fields = {
+        "num_elites": "num_elites",
+        "num_samples_first": "num_samples_first",
+        "num_refined": "num_refined",
+        "lr": "lr",
+        "grad_steps": "max_steps",
+    }
+
     def __init__(
         self,
         sigma: Sequence[float] | Tensor,
@@ -79,15 +87,12 @@ class CEMGD(CEM):
             raise ValueError("num_samples_first and num_refined must be >= 1")
         if not 0 < shrink < 1:
             raise ValueError(f"shrink must be in (0, 1), got {shrink}")
+        if not lr > 0 or max_steps < 1:
+            raise ValueError(f"lr must be > 0 and max_steps >= 1, got {lr} and {max_steps}")
         super().__init__(sigma, num_samples, num_iterations, num_elites, sampler)
-        self.num_samples_first = num_samples_first
-        self.num_refined = num_refined
-        self.lr = lr
-        self.shrink = shrink
-        self.max_failures = max_failures
-        self.max_steps = max_steps
-        self.betas = betas
-        self.eps = eps
+        self.num_samples_first, self.num_refined = num_samples_first, num_refined
+        self.lr, self.betas, self.eps = lr, betas, eps
+        self.shrink, self.max_failures, self.max_steps = shrink, max_failures, max_steps
         self._first_call = True
 
     @classmethod
@@ -222,6 +227,8 @@ class LBFGS(Optimizer):
         boundary_eps: How far inside ``[-1, 1]`` the initial mean is pulled.
     """
 
+    config_fields = {"lr": "lr", "grad_steps": "num_steps"}
+
     def __init__(
         self,
         lr: float = 5e-2,
@@ -233,15 +240,11 @@ class LBFGS(Optimizer):
         line_search_fn: Literal["strong_wolfe"] | None = "strong_wolfe",
         boundary_eps: float = 1e-3,
     ) -> None:
-        if num_steps < 1:
-            raise ValueError("num_steps must be >= 1")
-        self.lr = lr
-        self.num_steps = num_steps
-        self.max_iter = max_iter
-        self.history_size = history_size
-        self.tolerance_change = tolerance_change
-        self.tolerance_grad = tolerance_grad
-        self.line_search_fn = line_search_fn
+        if num_steps < 1 or not lr > 0:
+            raise ValueError(f"LBFGS needs num_steps >= 1 and lr > 0, got {num_steps} and {lr}")
+        self.lr, self.num_steps, self.max_iter = lr, num_steps, max_iter
+        self.history_size, self.line_search_fn = history_size, line_search_fn
+        self.tolerance_change, self.tolerance_grad = tolerance_change, tolerance_grad
         self.boundary_eps = boundary_eps
 
     @classmethod

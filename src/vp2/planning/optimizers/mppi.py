@@ -18,23 +18,27 @@ from vp2.planning.optimizers.base import (
     evaluate_objective,
 )
 from vp2.planning.samplers import ActionSampler, broadcast_std
+from vp2.utils.fixedsum import softmax_weights, weighted_mean
 
 
 def mppi_weights(scores: Tensor, gamma: float) -> Tensor:
     """MPPI weights ``w_n ∝ exp(γ · score_n)``, normalised to sum to 1.
 
-    ``softmax`` subtracts the maximum first, so large scores (pixel errors run to thousands)
+    The softmax subtracts the maximum first, so large scores (pixel errors run to thousands)
     cannot overflow. ``γ`` multiplies the scores, as in the original VP² code and the paper's
-    "scaling factor γ": it is an inverse temperature.
+    "scaling factor γ": it is an inverse temperature. Computed in float64 with the C library's
+    ``exp`` and a correctly rounded sum (:func:`vp2.utils.fixedsum.softmax_weights`), so the
+    weights are the same bits on every CPU; ``torch.softmax`` vectorises ``exp`` and its sum per
+    CPU.
 
     Args:
         scores: ``(N,)`` scores.
         gamma: Inverse temperature ``γ >= 0``; ``0`` gives uniform weights.
 
     Returns:
-        ``(N,)`` weights.
+        ``(N,)`` float64 weights on the scores' device.
     """
-    return torch.softmax(gamma * scores, dim=0)
+    return softmax_weights(scores, gamma)
 
 
 class MPPI(SamplingOptimizer):
@@ -85,8 +89,10 @@ class MPPI(SamplingOptimizer):
             samples = self.sampler.sample(mean, std, self.num_samples, generator)  # (N, H, A)
             with torch.no_grad():
                 scores = evaluate_objective(objective, samples)  # (N,)
-            weights = mppi_weights(scores.to(samples), self.gamma)  # (N,)
-            mean = (weights @ samples.flatten(1)).view_as(mean)  # (H, A) weighted mean
+            weights = mppi_weights(scores, self.gamma)  # (N,) float64
+            # The weighted mean added pairwise in a fixed order, not a BLAS product whose
+            # kernel (and so its last bits) is chosen per CPU.
+            mean = weighted_mean(weights, samples)  # (H, A)
             iteration_best.append(float(scores.max()))
         info = OptimizerInfo(
             best_score=max(iteration_best),

@@ -1,0 +1,54 @@
+"""The paper's training variants: what each trains, and how the results are packed."""
+
+from __future__ import annotations
+
+import tarfile
+from pathlib import Path
+
+from benchmarks.paper import train_variants as tv
+
+
+def test_the_variants_differ_only_in_loss_and_seed():
+    assert sorted(tv.VARIANTS) == sorted([
+        "svg-robodesk-mse-s0", "svg-robodesk-lpips1-s0", "svg-robodesk-lpips10-s0",
+        "fitvid-robodesk-mse-s0", "fitvid-robodesk-lpips1-s0", "fitvid-robodesk-lpips10-s0",
+        "svg-robodesk-mse-s1", "svg-robodesk-mse-s2", "svg-robodesk-mse-s3",
+    ])
+    v = tv.VARIANTS["svg-robodesk-lpips10-s0"]
+    args = v.train_args("data/x", Path("/tmp/none/run"), 6000, "cpu", None)
+    assert args[:5] == ["train", "--model", "svg_prime", "--preset", "m0.25k0.25"]
+    assert args[args.index("--perceptual") + 1:args.index("--perceptual") + 4] == ["lpips_vgg", "--perceptual-weight", "10"]
+    assert args[args.index("--model-arg") + 1:args.index("--model-arg") + 3] == ["m=0.125", "k=0.125"]
+    assert args[args.index("--batch-size") + 1] == "8"
+    assert "--resume" not in args and "--max-minutes" not in args
+    mse = tv.VARIANTS["fitvid-robodesk-mse-s0"].train_args("d", Path("/tmp/none/r"), 5, "cpu", 2.5)
+    assert "--perceptual" not in mse and mse[mse.index("--max-minutes") + 1] == "2.5"
+    assert tv.VARIANTS["svg-robodesk-mse-s3"].seed == 3
+
+
+def test_a_run_with_a_checkpoint_resumes(tmp_path):
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "step_00000100.pt").write_bytes(b"x")
+    assert "--resume" in tv.VARIANTS["svg-robodesk-mse-s1"].train_args("d", run, 10, "cpu", None)
+
+
+def test_children_share_the_cores(monkeypatch):
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setattr(tv.os, "cpu_count", lambda: 16)
+    assert tv.child_env(9)["OMP_NUM_THREADS"] == "1"
+    assert tv.child_env(4)["OMP_NUM_THREADS"] == "4"
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert tv.child_env(4)["OMP_NUM_THREADS"] == "3"
+
+
+def test_pack_splits_into_tars_under_the_limit(tmp_path):
+    out = tmp_path / "out"
+    (out / "export").mkdir(parents=True)
+    (out / "variants.json").write_text("{}")
+    for i in range(3):
+        (out / "export" / f"m{i}.pt").write_bytes(bytes(600))
+    tars = tv.pack(out, tmp_path / "packed", limit=1300)
+    assert [t.name for t in tars] == ["variants-0.tar", "variants-1.tar"]
+    names = [sorted(tarfile.open(t).getnames()) for t in tars]
+    assert names == [["export/m0.pt", "export/m1.pt", "variants.json"], ["export/m2.pt"]]
