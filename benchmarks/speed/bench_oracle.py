@@ -13,6 +13,12 @@ warm-up step that starts the worker pool and builds each worker's environment an
 
 Each sample costs the same, so a step with N samples scales linearly: with ``--num-samples``
 below 200 the table also shows the 200-sample step extrapolated (marked).
+
+The floor (tabletop): the same physics steps (N x 10 control steps x 500) as plain ``mj_step``
+calls on one core, in MuJoCo's own compiled loop (``mujoco.rollout``): the controls that the
+stepping computed for a few random candidates from the planning state, replayed open-loop.
+"x floor" is the planning step over that time; the targets are <= 1.3x on one core and <= 0.75x
+with both.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import platform
 import statistics
 import time
 
+import mujoco
 import numpy as np
 
 from benchmarks import common
@@ -57,6 +64,70 @@ def _sim_breakdown(env, state: np.ndarray, steps: int = 10) -> tuple[float, floa
     return t_step / steps, t_render / steps
 
 
+def _controlled_rollout(
+    env, state: np.ndarray, actions: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Steps ``actions`` (T, A) from ``state`` as ``env.step`` does, one physics step per call
+    of the compiled loop, and returns every physics step's ``ctrl`` (T * 500, nu) and the final
+    full-physics state."""
+    from vp2.envs._substep_kernel import run_substeps
+
+    model, data, st = env._model, env._data, env._stepper
+    env.reset_to(state)
+    controls = []
+    for action in actions:
+        mujoco.mj_step1(model, data)
+        goal_pos, goal_ori = st._set_goal(action)
+        grip = np.clip(
+            st._grip_bias + st._grip_weight * np.array(st.grip.goal_qvel),
+            st._grip_low,
+            st._grip_high,
+        )
+        for i in range(st.n_substeps):
+            if i:
+                mujoco.mj_step1(model, data)
+            run_substeps(
+                st._model_address, st._data_address, 1, st._qpos, st._qvel, st._qfrc_bias,
+                st._qM, st._ctrl, st._site_xpos, st._site_xmat, st._center_site, st._ref_site,
+                st._jacp_c, st._jacr_c, st._jacp, st._jacr, st._full_mass, st._qpos_index,
+                st._qvel_index, goal_pos, goal_ori, st._kp_pos, st._kd_pos, st._kp_ori,
+                st._kd_ori, st._nullspace_kp, np.asarray(st.osc.initial_joint, np.float64),
+                st._torques, st._arm_actuators, st._arm_low, st._arm_high, st._grip_actuators,
+                grip,
+            )  # fmt: skip
+            controls.append(data.ctrl.copy())
+        st.osc.new_update = st.grip.new_update = True
+    final = np.empty(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    mujoco.mj_getState(model, data, final, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    return np.array(controls), final
+
+
+def physics_floor(env, state: np.ndarray, num_samples: int, batch: int = 4) -> float:
+    """Seconds of ``num_samples`` x 10 control steps of plain ``mj_step`` on one core: the
+    physics steps of ``batch`` random candidates (their controls recorded from the controlled
+    stepping) replayed open-loop by MuJoCo's compiled ``mujoco.rollout``, scaled linearly.
+    Checks that the replay reaches the controlled rollouts' states (the same physics steps)."""
+    from mujoco import rollout
+
+    model, data = env._model, env._data
+    rng = np.random.default_rng(0)
+    recorded = [_controlled_rollout(env, state, rng.uniform(-1, 1, (10, env.action_dim)))
+                for _ in range(batch)]  # fmt: skip
+    env.reset_to(state)
+    mujoco.mj_forward(model, data)
+    initial = np.empty(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    mujoco.mj_getState(model, data, initial, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    controls = np.stack([c for c, _ in recorded])
+    initial = np.tile(initial, (batch, 1))
+    rollout.rollout(model, data, initial[:1], controls[:1, :10])  # warm-up
+    t0 = time.perf_counter()
+    states, _ = rollout.rollout(model, data, initial, controls)
+    seconds = time.perf_counter() - t0
+    gap = max(float(np.abs(states[i, -1] - final).max()) for i, (_, final) in enumerate(recorded))
+    print(f"floor: {batch} replayed candidates end {gap:.1e} from the controlled ones")
+    return seconds * num_samples / batch
+
+
 def main() -> None:
     parser = common.argument_parser(__spec__.name, __doc__)
     parser.add_argument("--tasks", nargs="+", default=["tabletop/push_sphere", "robodesk/push_red"])
@@ -71,6 +142,9 @@ def main() -> None:
         env = make_env(task, seed=args.seed, observation_size=None)
         obs, goal = observation(env, args.seed)
         step_s, render_s = _sim_breakdown(env, obs.state)
+        floor = (
+            physics_floor(env, obs.state, args.num_samples) if task.startswith("tabletop") else None
+        )
         env.close()
         models = {w: SimulatorModel(action_dim=env.action_dim, num_workers=w) for w in args.workers}
         times: dict[int, list[float]] = {w: [] for w in args.workers}
@@ -95,7 +169,7 @@ def main() -> None:
         base = statistics.median(times[args.workers[0]])
         for w in args.workers:
             t = statistics.median(times[w])
-            rows.append((task, w, t, startup[w], base / t, step_s, render_s, times[w]))
+            rows.append((task, w, t, startup[w], base / t, step_s, render_s, times[w], floor))
 
     print(
         f"machine: {platform.machine()} {os.cpu_count()} cores (load {os.getloadavg()[0]:.1f} at "
@@ -107,18 +181,20 @@ def main() -> None:
     if extrapolate:
         head += f" {SPEC_SAMPLES}-sample step s (extrapolated) |"
         rule += "---|"
-    head += " env step ms | render ms | runs s |"
-    rule += "---|---|---|"
+    head += " env step ms | render ms | floor s | x floor | runs s |"
+    rule += "---|---|---|---|---|"
     print(head)
     print(rule)
-    for task, w, t, start, speedup, step_s, render_s, runs in rows:
+    for task, w, t, start, speedup, step_s, render_s, runs, floor in rows:
         line = (
             f"| {task} | {w} | {t:.1f} | {1000 * t / args.num_samples:.0f} | {speedup:.2f}x | "
             f"{start:.1f} |"
         )
         if extrapolate:
             line += f" {t * SPEC_SAMPLES / args.num_samples:.0f} |"
-        line += f" {1000 * step_s:.0f} | {1000 * render_s:.0f} | {', '.join(f'{x:.1f}' for x in runs)} |"
+        line += f" {1000 * step_s:.0f} | {1000 * render_s:.1f} |"
+        line += " - | - |" if floor is None else f" {floor:.1f} | {t / floor:.2f}x |"
+        line += f" {', '.join(f'{x:.1f}' for x in runs)} |"
         print(line)
 
 

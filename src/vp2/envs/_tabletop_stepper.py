@@ -9,8 +9,10 @@ goals and torques with ``np.dot``/``np.linalg.inv``/``np.linalg.pinv``, i.e. Ope
 kernels that numpy and scipy choose by CPU at run time; the last bits of its trajectories, and
 through the contacts the trajectories themselves, depend on the machine. Here the goal is
 computed element-wise and the torques by :func:`vp2.envs._osc_kernel.osc_torques` (fixed-order
-loops compiled by numba): the same bits on every CPU. Against robosuite's own step the states
-agree to rounding (``tests/envs/test_tabletop.py``; figures in docs/tabletop.md).
+loops compiled by numba): the same bits on every CPU. The physics steps of a control step run in
+:func:`vp2.envs._substep_kernel.run_substeps`, one compiled loop with no Python per physics step.
+Against robosuite's own step the states agree to rounding (``tests/envs/test_tabletop.py``;
+figures in docs/tabletop.md).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from vp2.envs._osc_kernel import osc_torques
+from vp2.envs._substep_kernel import run_substeps
 from vp2.envs._tabletop_world import TabletopWorld
 
 
@@ -63,8 +65,8 @@ class LeanStepper:
         self._center_site = self.model.site(f"{osc.naming_prefix}{osc.part_name}_center").id
         self._qvel_index = np.asarray(osc.qvel_index, dtype=np.intp)
         self._qpos_index = np.asarray(osc.qpos_index, dtype=np.intp)
-        self._arm_actuators = np.array(robot._ref_actuators_indexes_dict["right"])
-        self._grip_actuators = np.array(robot._ref_actuators_indexes_dict["right_gripper"])
+        self._arm_actuators = np.array(robot._ref_actuators_indexes_dict["right"], np.intp)
+        self._grip_actuators = np.array(robot._ref_actuators_indexes_dict["right_gripper"], np.intp)
         ctrlrange = self.model.actuator_ctrlrange
         self._arm_low = ctrlrange[self._arm_actuators, 0]
         self._arm_high = ctrlrange[self._arm_actuators, 1]
@@ -85,6 +87,13 @@ class LeanStepper:
         self._jacp_c = np.zeros((3, nv))
         self._jacr_c = np.zeros((3, nv))
         self._torques = np.zeros(len(self._qvel_index))
+        # What the compiled physics loop reads and writes: raw addresses and the data's own
+        # arrays (views into mjData, fixed for the data's lifetime).
+        self._model_address = self.model._address
+        self._data_address = self.data._address
+        d = self.data
+        self._qpos, self._qvel, self._qfrc_bias, self._qM = d.qpos, d.qvel, d.qfrc_bias, d.qM
+        self._ctrl, self._site_xpos, self._site_xmat = d.ctrl, d.site_xpos, d.site_xmat
         self._hand = np.array(world.scene.controller.hand_orientation, np.float64)
         self._nullspace_kp = float(world.scene.controller.nullspace_kp)
         start, end = self.composite._action_split_indexes[self.osc.part_name]
@@ -126,15 +135,16 @@ class LeanStepper:
             self._grip_low,
             self._grip_high,
         )
-        for i in range(self.n_substeps):
-            if i:
-                mujoco.mj_step1(m, d)
-            torques = self._osc_torques(goal_pos, goal_ori)
-            d.ctrl[self._arm_actuators] = np.minimum(
-                np.maximum(torques, self._arm_low), self._arm_high
-            )
-            d.ctrl[self._grip_actuators] = grip_ctrl
-            mujoco.mj_step2(m, d)
+        run_substeps(
+            self._model_address, self._data_address, self.n_substeps,
+            self._qpos, self._qvel, self._qfrc_bias, self._qM, self._ctrl,
+            self._site_xpos, self._site_xmat, self._center_site, self._ref_site,
+            self._jacp_c, self._jacr_c, self._jacp, self._jacr, self._full_mass,
+            self._qpos_index, self._qvel_index, goal_pos, goal_ori,
+            self._kp_pos, self._kd_pos, self._kp_ori, self._kd_ori, self._nullspace_kp,
+            np.asarray(self.osc.initial_joint, np.float64), self._torques,
+            self._arm_actuators, self._arm_low, self._arm_high, self._grip_actuators, grip_ctrl,
+        )  # fmt: skip
         # Leave the controllers as robosuite's run_controller would: the next read is fresh.
         self.osc.new_update = True
         self.grip.new_update = True
@@ -169,22 +179,3 @@ class LeanStepper:
         )
         self.osc.goal_pos, self.osc.goal_ori = goal_pos, goal_ori
         return goal_pos, goal_ori
-
-    def _osc_torques(self, goal_pos: np.ndarray, goal_ori: np.ndarray) -> np.ndarray:
-        """``OperationalSpaceController.run_controller`` (+ ``update``) for the current physics
-        state, computed by :func:`vp2.envs._osc_kernel.osc_torques` (fixed-order arithmetic,
-        the same bits on every CPU)."""
-        m, d = self.model, self.data
-        mujoco.mj_jacSite(m, d, self._jacp_c, self._jacr_c, self._center_site)
-        mujoco.mj_jacSite(m, d, self._jacp, self._jacr, self._ref_site)
-        mujoco.mj_fullM(m, self._full_mass, d.qM)
-        osc_torques(
-            d.qpos, d.qvel, d.qfrc_bias, self._full_mass,
-            self._jacp_c, self._jacr_c, self._jacp, self._jacr,
-            self._qpos_index, self._qvel_index,
-            d.site_xpos[self._center_site], d.site_xmat[self._center_site].reshape(3, 3),
-            d.site_xpos[self._ref_site], d.site_xmat[self._ref_site].reshape(3, 3),
-            goal_pos, goal_ori, self._kp_pos, self._kd_pos, self._kp_ori, self._kd_ori,
-            self._nullspace_kp, self.osc.initial_joint, self._torques,
-        )  # fmt: skip
-        return self._torques
