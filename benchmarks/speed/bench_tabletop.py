@@ -51,7 +51,7 @@ import numpy as np  # noqa: E402
 
 from benchmarks import common  # noqa: E402
 from vp2.data.policies.base import NoisyPolicy  # noqa: E402
-from vp2.data.policies.tabletop import make_tabletop_policy  # noqa: E402
+from vp2.data.policies.tabletop import FELL_OFF, keeps_push, make_tabletop_policy  # noqa: E402
 from vp2.envs._tabletop_stepper import LeanStepper  # noqa: E402
 from vp2.envs._tabletop_world import TabletopWorld  # noqa: E402
 from vp2.envs.rendering import Renderer, antialiased_bilinear, mean_abs_error  # noqa: E402
@@ -283,8 +283,8 @@ def bench_dynamics(episodes: int, steps: int) -> dict:
 
 def _policy_episode(args: tuple[int | None, int, float]) -> dict:
     """One 35-step episode: whether the pushed object came within 5 cm of its aim, and whether
-    the trajectory passes the original's keep filter (some object other than the ball -- unless
-    the ball is pushed -- moved > 0.08 m in xy, none |dz| > 0.5 m)."""
+    the trajectory passes the original's keep filter (``keeps_push``: some object other than the
+    ball -- unless the ball is pushed -- moved > 0.08 m in xy, none |dz| > 0.5 m)."""
     obj, episode, sigma = args
     env = TabletopEnv("push_large_cube", seed=0, observation_size=None)
     env.reset(seed=100_000 + episode)
@@ -304,10 +304,9 @@ def _policy_episode(args: tuple[int | None, int, float]) -> dict:
     end = env.object_positions()
     env.close()
     moved = np.linalg.norm(end[:, :2] - start[:, :2], axis=1)
-    movers = [j for j in range(len(OBJECT_NAMES)) if j != 3 or k == 3]
-    fell = bool(np.abs(end[:, 2] - start[:, 2]).max() > 0.5)
+    fell = bool(np.abs(end[:, 2] - start[:, 2]).max() > FELL_OFF)
     return {"object": k, "reached": first is not None, "first": first, "fell": fell,
-            "kept": bool(moved[movers].max() > 0.08 and not fell), "moved": float(moved[k])}
+            "kept": keeps_push(start, end, k), "moved": float(moved[k])}
 
 
 def _rates(rows: list[dict]) -> dict:

@@ -63,8 +63,15 @@ def test_trajectory_depends_only_on_its_seed(tiny_dataset):
     index = 3  # stream 1 (open_drawer), stream index 1
     stream = TINY.resolved_streams()[index % 2]
     env = make_data_env(stream, observation_size=32)
-    fresh = rollout(env, stream, index, trajectory_seed(TINY.seed, stream, 1), 35, 32,
-                    data_noise_sigma(stream, 1))
+    fresh = rollout(
+        env,
+        stream,
+        index,
+        trajectory_seed(TINY.seed, stream, 1),
+        35,
+        32,
+        data_noise_sigma(stream, 1),
+    )
     np.testing.assert_array_equal(fresh.states, stored[index].states)
     np.testing.assert_array_equal(fresh.images, stored[index].images)
     assert fresh.noise_sigma == pytest.approx(0.2)
@@ -99,12 +106,33 @@ def test_sigkill_half_way_then_resume(tmp_path):
     """Kill a collection with SIGKILL after its first shard: its helper processes end with it,
     and re-running completes it exactly."""
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "vp2.cli", "collect", "robodesk", "--streams", "robodesk/push_blue",
-           "-n", "6", "--chunk-size", "2", "--image-size", "32", "--workers", "1", "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=os.environ)
+    cmd = [
+        sys.executable,
+        "-m",
+        "vp2.cli",
+        "collect",
+        "robodesk",
+        "--streams",
+        "robodesk/push_blue",
+        "-n",
+        "6",
+        "--chunk-size",
+        "2",
+        "--image-size",
+        "32",
+        "--workers",
+        "1",
+        "--out",
+        str(out),
+    ]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=os.environ
+    )
     deadline = time.time() + 300
     while not storage.shard_path(out, 0).exists():
-        assert proc.poll() is None and time.time() < deadline, "collection ended before its first shard"
+        assert proc.poll() is None and time.time() < deadline, (
+            "collection ended before its first shard"
+        )
         time.sleep(0.2)
     helpers = child_pids(proc.pid)  # the progress queue's manager (and multiprocessing's tracker)
     assert helpers
@@ -146,7 +174,9 @@ def test_states_only_collection_then_render_equals_a_rendered_collection(tiny_da
     # RoboDesk trajectories carry the package's dense reward summed over each step's repeats;
     # the paper's classifier label is dense >= 30 (a wider region than strict success).
     traj = next(storage.read_trajectories(storage.shard_path(tiny_dataset, 0)))
-    assert traj.dense_reward.shape == (36,) and np.all((traj.dense_reward > 0) & (traj.dense_reward <= 50))
+    assert traj.dense_reward.shape == (36,) and np.all(
+        (traj.dense_reward > 0) & (traj.dense_reward <= 50)
+    )
     dense = load_frames(tiny_dataset, "push_red", "train", label="dense")
     strict = load_frames(tiny_dataset, "push_red", "train", label="success")
     assert np.all(dense.labels[strict.labels])  # success implies the dense label here
@@ -164,7 +194,9 @@ def test_a_dataset_from_before_the_render_setting_still_resumes(tiny_dataset, tm
     (old / storage.MANIFEST).write_text(json.dumps(manifest))
     assert collect(TINY, old, workers=1, progress=False) == old
     with pytest.raises(FileExistsError, match="render: existing True vs requested False"):
-        collect(CollectionConfig(**{**TINY.__dict__, "render": False}), old, workers=1, progress=False)
+        collect(
+            CollectionConfig(**{**TINY.__dict__, "render": False}), old, workers=1, progress=False
+        )
 
 
 class _Bar:
@@ -229,8 +261,12 @@ def test_a_split_that_leaves_a_stream_without_held_out_trajectories_is_refused()
     config = CollectionConfig(env="robodesk", trajectories_per_stream=20, streams=two)
     with pytest.raises(ValueError, match=r"coprime with 2, e\.g\. 11"):
         config.validate()
-    CollectionConfig(env="robodesk", trajectories_per_stream=20, streams=two, valid_every=11).validate()
-    CollectionConfig(env="robodesk", trajectories_per_stream=20, streams=two, valid_every=0).validate()
+    CollectionConfig(
+        env="robodesk", trajectories_per_stream=20, streams=two, valid_every=11
+    ).validate()
+    CollectionConfig(
+        env="robodesk", trajectories_per_stream=20, streams=two, valid_every=0
+    ).validate()
     CollectionConfig(env="robodesk", trajectories_per_stream=20).validate()  # 7 streams, 10
     with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
         CollectionConfig(env="robodesk", trajectories_per_stream=20, seed=-1).validate()
@@ -245,3 +281,61 @@ def test_zero_trajectories_is_an_error_not_the_default(tmp_path, capsys):
     assert cli.main(["collect", "tabletop", "-n", "0", "--out", str(tmp_path / "d")]) == 2
     assert "trajectories per stream must be > 0, got 0" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+def test_tabletop_collection_keeps_only_the_pushes_the_original_kept(tmp_path):
+    """Every stored tabletop trajectory passes the keep filter; a dropped draw is redrawn with
+    the next retry seed, and the stored seed replays the stored trajectory."""
+    from vp2.data.collect import retry_seed
+    from vp2.data.policies.tabletop import keeps_push
+    from vp2.envs.tabletop import TabletopEnv
+
+    config = CollectionConfig(
+        env="tabletop", trajectories_per_stream=6, image_size=16, chunk_size=6, valid_every=0,
+        render=False,
+    )  # fmt: skip
+    out = collect(config, tmp_path / "tt", workers=1, progress=False)
+    stream = config.resolved_streams()[0]
+    positions = TabletopEnv.object_positions_from_state
+    redrawn = 0
+    for traj in storage.read_trajectories(storage.shard_path(out, 0)):
+        first = trajectory_seed(config.seed, stream, traj.index)
+        retries = [retry_seed(first, a) for a in range(1, 50)]
+        assert traj.seed == first or traj.seed in retries
+        redrawn += traj.seed != first
+        moved = np.linalg.norm(
+            positions(traj.states[-1])[:, :2] - positions(traj.states[0])[:, :2], axis=1
+        )
+        assert moved[:3].max() > 0.08 or moved[3] > 0.08
+        env = make_data_env(stream, observation_size=None)
+        fresh = rollout(
+            env,
+            stream,
+            traj.index,
+            traj.seed,
+            35,
+            16,
+            data_noise_sigma(stream, traj.index),
+            render=False,
+        )
+        np.testing.assert_array_equal(fresh.states, traj.states)
+        if traj.seed != first:  # the first draw was dropped
+            dropped = rollout(
+                env,
+                stream,
+                traj.index,
+                first,
+                35,
+                16,
+                data_noise_sigma(stream, traj.index),
+                render=False,
+            )
+            assert dropped is None
+    # About half the scripted pushes move nothing far enough: #4 and #5 were redrawn.
+    assert redrawn == 2
+    start = np.zeros((4, 3))
+    end = start.copy()
+    end[3, 0] = 0.2  # only the sphere moved: counts only when it is the pushed object
+    assert not keeps_push(start, end, pushed=0) and keeps_push(start, end, pushed=3)
+    end[0, 2] = -0.6  # an object fell off the table
+    assert not keeps_push(start, end, pushed=3)

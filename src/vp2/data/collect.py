@@ -118,6 +118,17 @@ def trajectory_seed(seed: int, stream: str, stream_index: int) -> int:
     return int(ss.generate_state(1, np.uint32)[0])
 
 
+#: Episodes drawn for one trajectory before the collection gives up (the tabletop's filter keeps
+#: about half of the pushes, so 50 failures in a row mean a broken policy).
+MAX_ATTEMPTS = 50
+
+
+def retry_seed(seed: int, attempt: int) -> int:
+    """The seed of a trajectory's ``attempt``-th redraw (attempt >= 1) after the collection
+    filter dropped the earlier episodes; the trajectory records the seed it was made from."""
+    return int(np.random.SeedSequence([seed, attempt]).generate_state(1, np.uint32)[0])
+
+
 def chunk_plan(config: CollectionConfig, indices: Sequence[int] | None = None) -> list[dict[str, Any]]:
     """The shards of a collection: ``[{"chunk": c, "first": i0, "count": n}, ...]``; with
     ``indices``, one shard per listed trajectory, numbered by its index (shard ``i`` holds
@@ -140,11 +151,13 @@ def rollout(
     image_size: int,
     noise_sigma: float | Sequence[float],
     render: bool = True,
-) -> storage.Trajectory:
+) -> storage.Trajectory | None:
     """Runs one noisy scripted trajectory from a seeded initial state and records it.
 
     RoboDesk trajectories also record the package's dense reward of every step (the
-    classifiers' paper label, SPEC §6); ``render=False`` records no images.
+    classifiers' paper label, SPEC §6); ``render=False`` records no images. ``None`` when the
+    policy's collection filter drops the episode (``ScriptedPolicy.keeps``: the tabletop keeps
+    only the pushes the original kept).
     """
     reset_seed, policy_seed, noise_seed = np.random.SeedSequence(seed).generate_state(3)
     env.reset(seed=int(reset_seed))
@@ -172,6 +185,8 @@ def rollout(
         success.append(bool(info["success"]))
         if dense is not None:
             dense.append(info["dense_reward"])
+    if not policy.keeps(np.asarray(states)):
+        return None
     sigma = np.asarray(noise_sigma, np.float64)
     return storage.Trajectory(
         task=stream,
@@ -204,18 +219,26 @@ def _collect_chunk(job: tuple[dict[str, Any], dict[str, Any], Any]) -> list[stor
         env = _WORKER_ENVS.get_or_make(
             (stream, size), functools.partial(make_data_env, stream, observation_size=size)
         )
-        trajectories.append(
-            rollout(
+        seed = trajectory_seed(config.seed, stream, stream_index)
+        for attempt in range(MAX_ATTEMPTS):
+            trajectory = rollout(
                 env,
                 stream,
                 index,
-                trajectory_seed(config.seed, stream, stream_index),
+                seed if attempt == 0 else retry_seed(seed, attempt),
                 config.horizon,
                 config.image_size,
                 data_noise_sigma(stream, stream_index),
                 render=config.render,
             )
-        )
+            if trajectory is not None:
+                break
+        else:
+            raise RuntimeError(
+                f"{stream}: trajectory {index} was dropped by the collection filter "
+                f"{MAX_ATTEMPTS} times in a row; the scripted policy no longer moves objects"
+            )
+        trajectories.append(trajectory)
         if progress_queue is not None:
             progress_queue.put(chunk["chunk"])
     return trajectories

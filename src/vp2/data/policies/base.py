@@ -54,6 +54,11 @@ class ScriptedPolicy(abc.ABC):
         script limits where the hand may go (the tabletop's) overrides it."""
         return action
 
+    def keeps(self, states: np.ndarray) -> bool:
+        """Whether the data collection keeps an episode that went through ``states`` (``(T+1,
+        S)``; default: always). The tabletop's script keeps only the pushes its original kept."""
+        return True
+
 
 #: Action-noise σ of the training data (SPEC §3). Tabletop: 0.05 on every action dimension but
 #: the gripper. RoboDesk: 0.1 on even and 0.2 on odd trajectories of a stream (half and half).
@@ -85,6 +90,9 @@ class NoisyPolicy(ScriptedPolicy):
 
     def goal_state(self) -> np.ndarray | None:
         return self.policy.goal_state()
+
+    def keeps(self, states: np.ndarray) -> bool:
+        return self.policy.keeps(states)
 
     def act(self) -> np.ndarray:
         action = self.policy.act()

@@ -72,6 +72,22 @@ _LOWER_ACTION = -0.75
 _LOWER_ABOVE_Z = 0.85  # world z of the grip site above which the hand is lowered
 
 
+#: The original's keep filter (SPEC §3, its ``filter_object_motion``): an episode is kept when
+#: an object moved more than this in the table plane between its first and last state (metres;
+#: the sphere counts only when it is the pushed object) ...
+KEEP_MOTION = 0.08
+#: ... and no object fell off the table (its height changed by more than this, metres).
+FELL_OFF = 0.5
+
+
+def keeps_push(start: np.ndarray, end: np.ndarray, pushed: int) -> bool:
+    """The original's keep filter on an episode's first and last object positions ``(4, 3)``."""
+    if np.abs(end[:, 2] - start[:, 2]).max() > FELL_OFF:
+        return False
+    counted = [k for k in range(len(OBJECT_NAMES)) if OBJECT_NAMES[k] != "sphere" or k == pushed]
+    return max(norm(end[k, :2] - start[k, :2]) for k in counted) > KEEP_MOTION
+
+
 class TabletopPushPolicy(ScriptedPolicy):
     """The original's pushing script (module docstring).
 
@@ -126,6 +142,11 @@ class TabletopPushPolicy(ScriptedPolicy):
     def goal_state(self) -> np.ndarray:
         """:meth:`goal_positions` as a state vector for ``env.is_success`` / ``env.set_goal``."""
         return TabletopEnv.with_object_positions(self.initial_state, self.goal_positions())
+
+    def keeps(self, states: np.ndarray) -> bool:
+        """The original's keep filter (:func:`keeps_push`) on the episode's first and last state."""
+        positions = TabletopEnv.object_positions_from_state
+        return keeps_push(positions(states[0]), positions(states[-1]), self.object_index)
 
     # ---- control -----------------------------------------------------------------------------
     def act(self) -> np.ndarray:
