@@ -6,16 +6,6 @@ from vp2.data.suite import SUITE_COUNTS, TaskSuite, generate_instance, replay_in
 from vp2.envs import TABLETOP_TASKS, TASK_NAMES
 from vp2.envs.tabletop import TabletopEnv
 
-#: Why the tests that replay or regenerate the shipped suite's tabletop instances fail for now.
-SUITE_V3 = "tabletop suite v3 predates the paper's scene; regenerated with suite v4"
-#: Every task, the tabletop's expected to fail against the shipped suite v3.
-TASKS_V3 = [
-    pytest.param(t, marks=pytest.mark.xfail(reason=SUITE_V3, strict=True))
-    if t.startswith("tabletop/")
-    else t
-    for t in TASK_NAMES
-]
-
 
 @pytest.fixture(scope="module")
 def shipped():
@@ -46,7 +36,7 @@ def test_action_limit_leaves_two_actions_of_slack_in_a_trial():
     assert suite_lib.MAX_INSTANCE_ACTIONS == 12 == suite_lib.LOOKBACK_RANGE[1]
 
 
-@pytest.mark.parametrize("task", TASKS_V3)
+@pytest.mark.parametrize("task", TASK_NAMES)
 def test_first_instance_replays_to_success_within_12_actions(shipped, task):
     inst = shipped.for_task(task)[0]
     assert len(inst.actions) <= suite_lib.MAX_INSTANCE_ACTIONS
@@ -71,7 +61,7 @@ def test_instances_start_along_the_scripted_trajectory(shipped):
         assert np.linalg.norm(goal[:, :2] - start[:, :2], axis=1).max() > 0.05
 
 
-@pytest.mark.parametrize("task", TASKS_V3)
+@pytest.mark.parametrize("task", TASK_NAMES)
 def test_first_instance_regenerates_bit_for_bit(shipped, task):
     inst = shipped.for_task(task)[0]
     fresh = generate_instance(task, inst.seed, index=0)
@@ -102,7 +92,6 @@ def test_bad_suite_file_is_reported(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason=SUITE_V3, strict=True)
 def test_every_instance_replays_to_success(shipped):
     """310 replays of up to 12 steps without rendering (about a minute on 2 cores)."""
     failures = []
@@ -114,7 +103,6 @@ def test_every_instance_replays_to_success(shipped):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason=SUITE_V3, strict=True)
 def test_full_regeneration_reproduces_the_shipped_file(tmp_path):
     from importlib import resources
 

@@ -26,9 +26,6 @@ def scaled(scene: TabletopScene, factor: float) -> TabletopScene:
     return dataclasses.replace(scene, objects=objects)
 
 
-#: Why the tests that replay the shipped suite's tabletop instances fail for now.
-SUITE_V3 = "tabletop suite v3 predates the paper's scene; regenerated with suite v4"
-
 BIG = scaled(DEFAULT_SCENE, 1.25)
 
 
@@ -45,12 +42,15 @@ def test_the_default_scene_is_the_benchmarks_scene():
     assert s.rest_heights == {
         "large_cube": 0.06, "small_cube": 0.04, "cylinder": 0.06, "sphere": 0.07,
     }  # fmt: skip
-    assert s.footprints == pytest.approx({
-        "large_cube": 0.06 * float(np.sqrt(2.0)),
-        "small_cube": 0.04 * float(np.sqrt(2.0)),
-        "cylinder": 0.06,
-        "sphere": 0.07,
-    }, rel=1e-15)
+    assert s.footprints == pytest.approx(
+        {
+            "large_cube": 0.06 * float(np.sqrt(2.0)),
+            "small_cube": 0.04 * float(np.sqrt(2.0)),
+            "cylinder": 0.06,
+            "sphere": 0.07,
+        },
+        rel=1e-15,
+    )
     assert [o.friction for o in s.objects] == [(0.7, 0.005, 0.0001)] * 3 + [(0.5, 0.005, 0.0001)]
     assert [o.condim for o in s.objects] == [None] * 4  # MuJoCo's 3: no rolling resistance
     assert [o.priority for o in s.objects] == [1] * 4
@@ -72,7 +72,12 @@ def test_the_default_scene_is_the_benchmarks_scene():
     assert p.initial_layout == ((0.0, -0.1), (0.0, 0.1), (0.2, -0.1), (0.2, 0.1))
     c = s.controller
     assert (c.control_freq, c.output_max, c.input_max, c.kp, c.damping_ratio, c.nullspace_kp) == (
-        1, 0.05, 1, 150, 1, 10.0
+        1,
+        0.05,
+        1,
+        150,
+        1,
+        10.0,
     )
     assert c.hand_orientation == ((0, 1, 0), (1, 0, 0), (0, 0, -1))
     assert s.camera.name == "agentview_shift_2" and s.camera.fovy == 45.0
@@ -91,7 +96,11 @@ def test_the_default_scene_is_the_benchmarks_scene():
     assert (a.light_diffuse, a.light_specular) == (0.8, 0.3)
     r = s.render
     assert (r.camera, r.shadow_size, r.shadow_lights, r.skybox, r.mesh_reduction) == (
-        "agentview_shift_2", 256, (), False, 0.7
+        "agentview_shift_2",
+        256,
+        (),
+        False,
+        0.7,
     )
     assert (r.multisamples, r.reflection, r.plane_spacing) == (0, False, 0.5)
     assert (r.numslices, r.numstacks, r.numquads) == (16, 8, 4)
@@ -168,7 +177,6 @@ def test_a_default_env_steps_as_recorded():
         assert "scene" not in env.serialize()["kwargs"]
 
 
-@pytest.mark.xfail(reason=SUITE_V3, strict=True)
 def test_a_default_env_replays_and_renders_a_shipped_instance_bit_for_bit():
     inst = TaskSuite.load().for_task("tabletop/push_cylinder")[0]
     with TabletopEnv("push_cylinder", observation_size=None) as env:

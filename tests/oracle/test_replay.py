@@ -64,8 +64,8 @@ def _first_records(root: Path = RESULTS) -> dict[str, tuple[dict, dict]]:
 
 
 #: Why the committed tabletop oracle records no longer replay.
-SUITE_V3 = ("the shipped oracle table's tabletop rows were measured on suite v3; re-measured on "
-            "suite v4 next")
+SUITE_V3 = ("the shipped oracle tables' tabletop rows are suite v3's (the old scene); they replay "
+            "once the tables are measured on suite v4")
 
 
 def _params() -> list:

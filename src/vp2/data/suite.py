@@ -41,11 +41,13 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
+from vp2.data.policies.tabletop import FELL_OFF, KEEP_MOTION
 from vp2.envs import ENV_TASKS, TASK_NAMES, TASKS, make_env, split_name
 from vp2.envs.base import Env
 from vp2.envs.cache import EnvCache
 from vp2.spec import NUM_CONTROL_STEPS
 from vp2.utils.executors import Executor, LocalExecutor
+from vp2.utils.fixedmath import norm
 from vp2.utils.io import atomic_path
 
 #: Instances per task category (SPEC §2): 30 per RoboDesk task, 25 per tabletop category
@@ -63,7 +65,7 @@ MAX_INSTANCE_ACTIONS = TRIAL_FREE_ACTIONS - 2
 #: The look-back ``L`` (scripted actions between the initial state and the first success) is
 #: drawn uniformly from this inclusive range per instance.
 LOOKBACK_RANGE = (4, MAX_INSTANCE_ACTIONS)
-SUITE_FORMAT = "vp2-task-suite/3"
+SUITE_FORMAT = "vp2-task-suite/4"
 SHIPPED_SUITE = "task_suite.npz"
 
 
@@ -330,13 +332,6 @@ def generate_instance(
     )
 
 
-#: The original's keep filter (SPEC §3): the pushed object moved more than this in the table
-#: plane (metres) ...
-KEEP_MOTION = 0.08
-#: ... and no object fell off the table (|Δz| beyond this, metres).
-FELL_OFF = 0.5
-
-
 def _succeeds(env: Env, state: np.ndarray, goal: np.ndarray) -> bool:
     env.reset_to(state)
     return env.is_success(goal)
@@ -362,7 +357,7 @@ def _tabletop_trajectory(env: Env, policy: Any) -> tuple[list, list, np.ndarray]
     end = env.object_positions()
     k = policy.object_index
     if (
-        np.linalg.norm(end[k, :2] - start_positions[k, :2]) <= KEEP_MOTION
+        norm(end[k, :2] - start_positions[k, :2]) <= KEEP_MOTION
         or np.abs(end[:, 2] - start_positions[:, 2]).max() > FELL_OFF
     ):
         return None
