@@ -28,8 +28,13 @@ def main() -> None:
     parser.add_argument("--image-size", type=int, default=64)
     args = parser.parse_args()
     streams = stream_names(args.env)
-    config = CollectionConfig(env=args.env, trajectories_per_stream=args.n, streams=streams,
-                              image_size=args.image_size, chunk_size=max(1, args.n * len(streams) // 8))
+    config = CollectionConfig(
+        env=args.env,
+        trajectories_per_stream=args.n,
+        streams=streams,
+        image_size=args.image_size,
+        chunk_size=max(1, args.n * len(streams) // 8),
+    )
     rates: dict[int, list[float]] = {1: [], 2: []}
     for _ in range(args.repeats):
         for workers in (1, 2):
@@ -38,8 +43,10 @@ def main() -> None:
                 collect(config, Path(tmp) / "ds", workers=workers, progress=False)
                 rates[workers].append(60 * config.total / (time.perf_counter() - t0))
     r1, r2 = statistics.median(rates[1]), statistics.median(rates[2])
-    print(f"machine: {platform.processor() or platform.machine()}, {args.env}, "
-          f"{config.total} trajectories x {args.repeats} repeats, {args.image_size}px")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {args.env}, "
+        f"{config.total} trajectories x {args.repeats} repeats, {args.image_size}px"
+    )
     print("| workers | trajectories/min (median) | runs |")
     print("|---|---|---|")
     for w, r in ((1, r1), (2, r2)):

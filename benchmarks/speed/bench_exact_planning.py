@@ -39,15 +39,20 @@ from vp2.spec import SIGMA
 
 
 def _old_normal(shape, generator, like):
-    return torch.randn(tuple(shape), generator=generator, device=generator.device,
-                       dtype=like.dtype).to(like.device)
+    return torch.randn(
+        tuple(shape), generator=generator, device=generator.device, dtype=like.dtype
+    ).to(like.device)
 
 
 def _old_pixel_sse(frames, goal):
     goal = costs._goal_for(goal, frames)
     block = max(1, costs._CPU_BLOCK_VALUES // frames[0].numel())
-    return torch.cat([torch.linalg.vector_norm((c - goal).flatten(1), dim=1).square()
-                      for c in frames.split(block)])
+    return torch.cat(
+        [
+            torch.linalg.vector_norm((c - goal).flatten(1), dim=1).square()
+            for c in frames.split(block)
+        ]
+    )
 
 
 def _old_weights(scores, gamma):
@@ -62,9 +67,13 @@ def _old_mean(weights, samples):
 def legacy() -> Iterator[None]:
     """The previous arithmetic in place of the CPU-independent one."""
     build = agent_mod.build_cost
-    saved = [(samplers, "standard_normal", _old_normal), (costs, "pixel_sse", _old_pixel_sse),
-             (mppi, "mppi_weights", _old_weights), (mppi, "weighted_mean", _old_mean),
-             (agent_mod, "build_cost", lambda *a, **k: build(*a, **{**k, "exact": False}))]
+    saved = [
+        (samplers, "standard_normal", _old_normal),
+        (costs, "pixel_sse", _old_pixel_sse),
+        (mppi, "mppi_weights", _old_weights),
+        (mppi, "weighted_mean", _old_mean),
+        (agent_mod, "build_cost", lambda *a, **k: build(*a, **{**k, "exact": False})),
+    ]
     old = [(m, n, getattr(m, n)) for m, n, _ in saved]
     for m, n, f in saved:
         setattr(m, n, f)
@@ -80,18 +89,25 @@ def _oracle_step(samples: int) -> Callable[[], object]:
     inst = TaskSuite.load().get(task, 0)
     model = SimulatorModel(5)
     from vp2.envs import make_env_from_metadata
+
     env = make_env_from_metadata(inst.env_meta)
     env.reset_to(inst.init_state)
     frames = [env.render(64)]
     env.step(np.zeros(5))
     frames.append(env.render(64))
-    obs = Observation(step=1, frames=np.stack(frames), last_action=np.zeros(5),
-                      env_meta=inst.env_meta, state=env.get_state())
+    obs = Observation(
+        step=1,
+        frames=np.stack(frames),
+        last_action=np.zeros(5),
+        env_meta=inst.env_meta,
+        state=env.get_state(),
+    )
 
     def step() -> object:
         agent = PlanningAgent(model, planner=PlannerConfig(num_samples=samples), device="cpu")
         agent.reset(task, inst.goal_image, seed=0)
         return agent.act(obs)
+
     return step
 
 
@@ -100,8 +116,12 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=7)
     p.add_argument("--oracle-samples", type=int, default=20)
     p.add_argument("--oracle-repeats", type=int, default=3)
-    p.add_argument("--device", default="cpu", help="where frames, costs and the classifier "
-                   "live (the oracle step always runs on the CPU; 0 oracle samples skip it)")
+    p.add_argument(
+        "--device",
+        default="cpu",
+        help="where frames, costs and the classifier "
+        "live (the oracle step always runs on the CPU; 0 oracle samples skip it)",
+    )
     args = p.parse_args()
     torch.set_num_threads(1)
     dev = torch.device(args.device)
@@ -128,14 +148,19 @@ def main() -> None:
         "pixel SSE, 200x10 frames": lambda: costs.pixel_sse(frames, goal),
         "classifier, 2000 frames": lambda: clf(flat),
         "model-based MPPI step (frames precomputed)": lambda: planner.optimize(
-            lambda x: cost.score(frames), mean, g),
+            lambda x: cost.score(frames), mean, g
+        ),
     }
     exact_clf = {"classifier, 2000 frames": lambda: clf.exact_logits(flat)}
     times: dict[tuple[str, str], list[float]] = {}
     jobs = list(rows.items())
     if args.oracle_samples:
-        jobs.append((f"oracle planning step, push_red, {args.oracle_samples} samples",
-                     _oracle_step(args.oracle_samples)))
+        jobs.append(
+            (
+                f"oracle planning step, push_red, {args.oracle_samples} samples",
+                _oracle_step(args.oracle_samples),
+            )
+        )
     for name, fn in jobs:
         reps = args.oracle_repeats if name.startswith("oracle") else args.repeats
         fn()  # warm-up (the oracle's env, the classifier's exact copy)
@@ -152,10 +177,12 @@ def main() -> None:
                     if dev.type == "cuda":
                         torch.cuda.synchronize(dev)
                     times.setdefault((name, label), []).append(time.perf_counter() - start)
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"torch {torch.__version__}, ATen {torch.backends.cpu.get_cpu_capability()}, "
-          f"1 thread, load {os.getloadavg()[0]:.1f}, device {dev}"
-          + (f" ({torch.cuda.get_device_name(dev)})" if dev.type == "cuda" else ""))
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"torch {torch.__version__}, ATen {torch.backends.cpu.get_cpu_capability()}, "
+        f"1 thread, load {os.getloadavg()[0]:.1f}, device {dev}"
+        + (f" ({torch.cuda.get_device_name(dev)})" if dev.type == "cuda" else "")
+    )
     print("| step | before ms | after ms | after / before |\n|---|---|---|---|")
     for name, _ in jobs:
         b = statistics.median(times[(name, "before")]) * 1e3

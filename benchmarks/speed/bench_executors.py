@@ -72,10 +72,16 @@ def bench_oracle(instances: int, seeds: int, samples: int, repeats: int) -> dict
         for workers in (1, 2):
             with tempfile.TemporaryDirectory() as tmp:
                 config = RunConfig(
-                    model="simulator", out=str(Path(tmp) / "run"), tasks=("tabletop",),
-                    num_instances=instances, seeds=tuple(range(seeds)),
+                    model="simulator",
+                    out=str(Path(tmp) / "run"),
+                    tasks=("tabletop",),
+                    num_instances=instances,
+                    seeds=tuple(range(seeds)),
                     planner=PlannerConfig(num_samples=samples),
-                    num_steps=5, save_gifs=False, progress=False, executor="ray",
+                    num_steps=5,
+                    save_gifs=False,
+                    progress=False,
+                    executor="ray",
                     workers=workers,
                 )
                 t0 = time.perf_counter()
@@ -106,12 +112,17 @@ def bench_overhead(n1: int, n2: int, repeats: int) -> dict[str, tuple[float, flo
 
 def main() -> None:
     parser = common.argument_parser(__spec__.name, __doc__)
-    parser.add_argument("--parts", nargs="+", default=["collect", "oracle", "overhead"],
-                        choices=["collect", "oracle", "overhead"])
+    parser.add_argument(
+        "--parts",
+        nargs="+",
+        default=["collect", "oracle", "overhead"],
+        choices=["collect", "oracle", "overhead"],
+    )
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("-n", type=int, default=16, help="tabletop trajectories to collect")
-    parser.add_argument("--instances", type=int, default=2, help="oracle: tabletop instances "
-                        "per category")
+    parser.add_argument(
+        "--instances", type=int, default=2, help="oracle: tabletop instances per category"
+    )
     parser.add_argument("--seeds", type=int, default=1, help="oracle: seeds")
     parser.add_argument("--num-samples", type=int, default=20, help="oracle: planner samples")
     parser.add_argument("--n1", type=int, default=50)
@@ -121,8 +132,10 @@ def main() -> None:
 
     torch.set_num_threads(1)
     ray = _start_ray(2)
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"ray {ray.__version__}\n")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"ray {ray.__version__}\n"
+    )
     try:
         if "collect" in args.parts:
             r = bench_collect(args.n, args.repeats)

@@ -29,9 +29,14 @@ def main() -> None:
     for uint8 in (False, True):
         ds = ClipDataset(args.dataset, split="train", uint8=uint8)
         for workers in (0, 1, 2):
-            loader = DataLoader(ds, batch_size=args.batch_size, shuffle=True, num_workers=workers,
-                                generator=torch.Generator().manual_seed(0),
-                                persistent_workers=workers > 0)
+            loader = DataLoader(
+                ds,
+                batch_size=args.batch_size,
+                shuffle=True,
+                num_workers=workers,
+                generator=torch.Generator().manual_seed(0),
+                persistent_workers=workers > 0,
+            )
             it = iter(loader)
             next(it)
             t0 = time.perf_counter()

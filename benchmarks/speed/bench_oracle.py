@@ -64,7 +64,7 @@ def _sim_breakdown(env, state: np.ndarray, steps: int = 10) -> tuple[float, floa
     return t_step / steps, t_render / steps
 
 
-def _controlled_rollout(
+def controlled_rollout(
     env, state: np.ndarray, actions: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Steps ``actions`` (T, A) from ``state`` as ``env.step`` does, one physics step per call
@@ -111,7 +111,7 @@ def physics_floor(env, state: np.ndarray, num_samples: int, batch: int = 4) -> f
 
     model, data = env._model, env._data
     rng = np.random.default_rng(0)
-    recorded = [_controlled_rollout(env, state, rng.uniform(-1, 1, (10, env.action_dim)))
+    recorded = [controlled_rollout(env, state, rng.uniform(-1, 1, (10, env.action_dim)))
                 for _ in range(batch)]  # fmt: skip
     env.reset_to(state)
     mujoco.mj_forward(model, data)

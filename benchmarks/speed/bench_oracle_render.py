@@ -43,7 +43,9 @@ def before_renderer(env) -> Renderer:
 def env_render_spec(env) -> RenderSpec:
     from vp2.envs import robodesk, tabletop
 
-    return robodesk.RENDER_SPEC if env.name.startswith("robodesk") else tabletop.DEFAULT_SCENE.render
+    return (
+        robodesk.RENDER_SPEC if env.name.startswith("robodesk") else tabletop.DEFAULT_SCENE.render
+    )
 
 
 def physics_model(env):
@@ -74,8 +76,11 @@ def breakdown(env, state: np.ndarray, samples: int = 5) -> dict[str, float]:
 
 def main() -> None:
     parser = common.argument_parser(__spec__.name, __doc__)
-    parser.add_argument("--cases", nargs="+", default=[
-        "robodesk/push_red:50", "robodesk/push_red:200", "tabletop/push_large_cube:200"])
+    parser.add_argument(
+        "--cases",
+        nargs="+",
+        default=["robodesk/push_red:50", "robodesk/push_red:200", "tabletop/push_large_cube:200"],
+    )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     rows, parts = [], []
@@ -103,8 +108,10 @@ def main() -> None:
         before.close()
         rows.append((task, int(n), times["before"], times["after"]))
         parts.append((task, breakdown(env, obs.state)))
-    print(f"\n{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end; one "
-          "oracle worker; one planning step per row\n")
+    print(
+        f"\n{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end; one "
+        "oracle worker; one planning step per row\n"
+    )
     print("| task | samples | before s | after s | speed-up |")
     print("|---|---|---|---|---|")
     for task, n, b, a in rows:
@@ -113,8 +120,10 @@ def main() -> None:
     print("| task | reset_to | physics | render | transfer | total |")
     print("|---|---|---|---|---|---|")
     for task, p in dict(parts).items():
-        print(f"| {task} | {p['reset_to']:.2f} | {p['physics']:.0f} | {p['render']:.0f} | "
-              f"{p['transfer']:.2f} | {sum(p.values()):.0f} |")
+        print(
+            f"| {task} | {p['reset_to']:.2f} | {p['physics']:.0f} | {p['render']:.0f} | "
+            f"{p['transfer']:.2f} | {sum(p.values()):.0f} |"
+        )
 
 
 if __name__ == "__main__":

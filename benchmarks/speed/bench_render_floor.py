@@ -52,7 +52,11 @@ from vp2.envs.rendering import Renderer, RenderSpec, mean_abs_error  # noqa: E40
 def previous_spec(spec: RenderSpec) -> RenderSpec:
     """The settings before the simplified meshes: same knobs, original meshes and tessellation."""
     return dataclasses.replace(
-        spec, mesh_reduction=0.0, plane_spacing=None, numslices=None, numstacks=None,
+        spec,
+        mesh_reduction=0.0,
+        plane_spacing=None,
+        numslices=None,
+        numstacks=None,
         numquads=None,
     )
 
@@ -220,8 +224,10 @@ def time_interleaved(names: list[str], rounds: int) -> dict[str, list[float]]:
             times[name].append(time.perf_counter() - t)
     for name, call in calls.items():
         if hasattr(call, "check"):
-            print(f"# check ({name}, {len(names)} variant(s) in the process): {call.check()}",
-                  file=sys.stderr)
+            print(
+                f"# check ({name}, {len(names)} variant(s) in the process): {call.check()}",
+                file=sys.stderr,
+            )
     return times
 
 
@@ -230,7 +236,9 @@ def time_subprocesses(names: list[str], rounds: int) -> dict[str, list[float]]:
     for name in names:
         proc = subprocess.run(
             [sys.executable, "-m", __spec__.name, "--single", name, "--rounds", str(rounds)],
-            check=True, capture_output=True, text=True,
+            check=True,
+            capture_output=True,
+            text=True,
         )
         out[name] = json.loads(proc.stdout.strip().splitlines()[-1])
         for line in proc.stderr.splitlines():
@@ -261,7 +269,8 @@ def fidelity(episodes: int) -> dict[str, dict[str, list[float]]]:
                 sigma = TABLETOP_NOISE if env_name == "tabletop" else ROBODESK_NOISE[episode % 2]
                 policy = NoisyPolicy(
                     make_task_policy(env, np.random.default_rng([t, episode])),
-                    sigma, np.random.default_rng([t, episode, 1]),
+                    sigma,
+                    np.random.default_rng([t, episode, 1]),
                 )
                 for step in range(35):
                     env.step(policy.act())
@@ -322,10 +331,12 @@ def main() -> None:
             "(b) robodesk render: previous / new": rd_old / rd_new,
             "(b) tabletop render: previous / new": _ms(
                 t["tabletop: render, previous settings, original meshes"]
-            ) / _ms(t["tabletop: render, new RENDER_SPEC"]),
+            )
+            / _ms(t["tabletop: render, new RENDER_SPEC"]),
             "(c) tabletop step: robosuite / vp2": _ms(
                 t["tabletop: robosuite step + 64x64 camera obs"]
-            ) / _ms(t["tabletop: vp2 step + 64x64 obs"]),
+            )
+            / _ms(t["tabletop: vp2 step + 64x64 obs"]),
         }
 
     print("\n| ratio | one process, interleaved | own subprocesses |")

@@ -98,7 +98,12 @@ def bench_speed(steps: int) -> dict:
     n_substeps = ours._stepper.n_substeps
     times: dict[str, list[float]] = {"ours": [], "ours_blind": [], "robosuite": [], "floor": []}
     probe = mujoco.MjData(model)
+    from mujoco import rollout
+
+    from benchmarks.speed.bench_oracle import controlled_rollout
+
     for i, action in enumerate(actions):
+        before = ours_blind.get_state()
         t0 = time.perf_counter()
         ours.step(action)
         t1 = time.perf_counter()
@@ -106,10 +111,16 @@ def bench_speed(steps: int) -> dict:
         t2 = time.perf_counter()
         obs, *_ = robo.step(action)
         t3 = time.perf_counter()
-        mujoco.mj_setState(model, probe, ours.get_state()[: ours._n_integration], _INTEGRATION)
+        after = ours_blind.get_state()
+        # The floor: this step's physics steps as plain mj_step calls in MuJoCo's compiled loop,
+        # with the controls the controller computed (recorded), replayed open-loop.
+        controls, _ = controlled_rollout(ours_blind, before, action[None])
+        ours_blind.reset_to(after)
+        start = np.empty(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+        mujoco.mj_setState(model, probe, before[: ours._n_integration], _INTEGRATION)
+        mujoco.mj_getState(model, probe, start, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         t4 = time.perf_counter()
-        for _ in range(n_substeps):
-            mujoco.mj_step(model, probe)
+        rollout.rollout(model, probe, start[None], controls[None])
         t5 = time.perf_counter()
         if i >= 3:  # warm-up: first renders create GL contexts
             times["ours"].append(t1 - t0)
@@ -299,14 +310,23 @@ def _policy_episode(args: tuple[int | None, int, float]) -> dict:
     first = None
     for t in range(35):
         env.step(actor.act())
-        if first is None and np.linalg.norm(env.object_positions()[k, :2] - policy.target_xy) < 0.05:
+        if (
+            first is None
+            and np.linalg.norm(env.object_positions()[k, :2] - policy.target_xy) < 0.05
+        ):
             first = t + 1
     end = env.object_positions()
     env.close()
     moved = np.linalg.norm(end[:, :2] - start[:, :2], axis=1)
     fell = bool(np.abs(end[:, 2] - start[:, 2]).max() > FELL_OFF)
-    return {"object": k, "reached": first is not None, "first": first, "fell": fell,
-            "kept": keeps_push(start, end, k), "moved": float(moved[k])}
+    return {
+        "object": k,
+        "reached": first is not None,
+        "first": first,
+        "fell": fell,
+        "kept": keeps_push(start, end, k),
+        "moved": float(moved[k]),
+    }
 
 
 def _rates(rows: list[dict]) -> dict:
@@ -325,10 +345,16 @@ def bench_policy(episodes: int, workers: int) -> dict:
     """Noise-free per category (``episodes`` each) and noisy (σ = 0.05) with a random object
     (``episodes`` in all), as the data stream runs it."""
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        clean = list(pool.map(_policy_episode, [
-            (o, e, 0.0) for o in range(len(OBJECT_NAMES)) for e in range(episodes)], chunksize=2))
-        noisy = list(pool.map(_policy_episode, [(None, e, 0.05) for e in range(episodes)],
-                              chunksize=2))
+        clean = list(
+            pool.map(
+                _policy_episode,
+                [(o, e, 0.0) for o in range(len(OBJECT_NAMES)) for e in range(episodes)],
+                chunksize=2,
+            )
+        )
+        noisy = list(
+            pool.map(_policy_episode, [(None, e, 0.05) for e in range(episodes)], chunksize=2)
+        )
     out: dict = {"episodes": episodes, "noise_free": {}, "noisy_0.05": {}}
     for o, name in enumerate(OBJECT_NAMES):
         out["noise_free"][f"push_{name}"] = _rates([r for r in clean if r["object"] == o])
@@ -392,7 +418,9 @@ def main() -> None:
         print(f"\n## Hand response to (0, 1, 0, 0) from {r['resets']} resets (cm)\n")
         print("| | median | min | max |\n|---|---|---|---|")
         for label, c in (("moved in the step", mv), ("drift under the next zero action", dr)):
-            print(f"| {label} | {c['median']*100:.3f} | {c['min']*100:.3f} | {c['max']*100:.3f} |")
+            print(
+                f"| {label} | {c['median'] * 100:.3f} | {c['min'] * 100:.3f} | {c['max'] * 100:.3f} |"
+            )
     if "fidelity" in sections:
         r = report["fidelity"] = bench_fidelity(args.states)
         print(
@@ -425,14 +453,20 @@ def main() -> None:
         )
     if "policy" in sections:
         r = report["policy"] = bench_policy(args.episodes, args.workers)
-        print(f"\n## Scripted policy over 35 steps ({r['episodes']} episodes per category "
-              "noise-free, in all noisy)\n")
-        print("| run | category | episodes | object within 5 cm of its aim | kept by the filter "
-              "| an object fell off | median distance pushed |\n|---|---|---|---|---|---|---|")
+        print(
+            f"\n## Scripted policy over 35 steps ({r['episodes']} episodes per category "
+            "noise-free, in all noisy)\n"
+        )
+        print(
+            "| run | category | episodes | object within 5 cm of its aim | kept by the filter "
+            "| an object fell off | median distance pushed |\n|---|---|---|---|---|---|---|"
+        )
         for run in ("noise_free", "noisy_0.05"):
             for cat, c in r[run].items():
-                print(f"| {run} | {cat} | {c['episodes']} | {c['reached_5cm']:.0%} | "
-                      f"{c['kept_by_filter']:.0%} | {c['fell_off']:.0%} | {c['median_moved_m']:.3f} m |")
+                print(
+                    f"| {run} | {cat} | {c['episodes']} | {c['reached_5cm']:.0%} | "
+                    f"{c['kept_by_filter']:.0%} | {c['fell_off']:.0%} | {c['median_moved_m']:.3f} m |"
+                )
     if args.json:
         with open(args.json, "w") as f:
             json.dump(report, f, indent=2, default=str)

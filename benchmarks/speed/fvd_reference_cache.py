@@ -29,8 +29,15 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     def score(fvd: FrechetVideoDistance) -> tuple[float, float]:
-        r = evaluate_model("repeat_last_frame", args.data, num_clips=args.clips, lpips_nets=(),
-                           device="cpu", progress=False, fvd_metric=fvd)
+        r = evaluate_model(
+            "repeat_last_frame",
+            args.data,
+            num_clips=args.clips,
+            lpips_nets=(),
+            device="cpu",
+            progress=False,
+            fvd_metric=fvd,
+        )
         return r["seconds"]["fvd"], r["metrics"]["fvd"]
 
     shared = FrechetVideoDistance(device="cpu", batch_size=DEFAULT_BATCH_SIZE)
@@ -42,9 +49,11 @@ def main() -> None:
         s, v = score(shared)
         once += s
         values.add(v)
-    print(f"{args.models} models x {args.clips} clips, {args.threads} thread(s): FVD seconds "
-          f"one FVD per model {each:.1f}, one shared {once:.1f}, ratio {each / once:.2f}; "
-          f"FVD values identical: {len(values) == 1}")
+    print(
+        f"{args.models} models x {args.clips} clips, {args.threads} thread(s): FVD seconds "
+        f"one FVD per model {each:.1f}, one shared {once:.1f}, ratio {each / once:.2f}; "
+        f"FVD values identical: {len(values) == 1}"
+    )
 
 
 if __name__ == "__main__":

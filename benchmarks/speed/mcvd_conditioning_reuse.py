@@ -50,10 +50,14 @@ def main() -> None:
     p.add_argument("--sampling-steps", type=int, help="default: the preset's")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    print(f"# {time.strftime('%Y-%m-%d %H:%M')}  {platform.processor() or platform.machine()}  "
-          f"threads={args.threads}  batch={args.batch}  torch {torch.__version__}")
-    print("| preset | sampling steps | per step (s, median) | once per window (s, median) "
-          "| speed-up | identical frames |")
+    print(
+        f"# {time.strftime('%Y-%m-%d %H:%M')}  {platform.processor() or platform.machine()}  "
+        f"threads={args.threads}  batch={args.batch}  torch {torch.__version__}"
+    )
+    print(
+        "| preset | sampling steps | per step (s, median) | once per window (s, median) "
+        "| speed-up | identical frames |"
+    )
     print("|---|---|---|---|---|---|")
     for preset in args.preset:
         overrides = {} if args.sampling_steps is None else {"sampling_steps": args.sampling_steps}
@@ -72,8 +76,10 @@ def main() -> None:
             once.append(t1)
             same &= torch.equal(y0, y1)
         a, b = sorted(per_step)[len(per_step) // 2], sorted(once)[len(once) // 2]
-        print(f"| {preset} | {model.config.sampling_steps} | {a:.2f} | {b:.2f} | "
-              f"{a / b:.2f}x | {same} |")
+        print(
+            f"| {preset} | {model.config.sampling_steps} | {a:.2f} | {b:.2f} | "
+            f"{a / b:.2f}x | {same} |"
+        )
 
 
 if __name__ == "__main__":

@@ -62,6 +62,7 @@ def main() -> None:
 
     frames, actions = held_out_clips(args.data, args.clips, args.seed, context=2, future=10)
     env = "tabletop" if actions.shape[-1] == 4 else "robodesk"
+
     def predict(value: int) -> tuple[torch.Tensor, float]:
         # The checkpoint loaded with an inference override, as `vp2 run --model-arg` does.
         model = resolve_model(
@@ -83,14 +84,18 @@ def main() -> None:
             times[v].append(per_clip)
             results[v] = quality(pred, frames[:, 2:], frames[:, 1:2])
 
-    print(f"{args.model}: {len(frames)} held-out clips of {args.data} (seed {args.seed}), "
-          f"{platform.machine()} CPU, {args.threads} thread(s)")
+    print(
+        f"{args.model}: {len(frames)} held-out clips of {args.data} (seed {args.seed}), "
+        f"{platform.machine()} CPU, {args.threads} thread(s)"
+    )
     print(f"| {field} | s per clip | MSE | MSE, changing pixels | PSNR | SSIM ×100 |")
     print("|---|---|---|---|---|---|")
     for v in args.values:
         r = results[v]
-        print(f"| {v} | {statistics.median(times[v]):.3f} | {r['mse']:.5f} | "
-              f"{r['moving_mse']:.5f} | {r['psnr']:.2f} | {r['ssim']:.1f} |")
+        print(
+            f"| {v} | {statistics.median(times[v]):.3f} | {r['mse']:.5f} | "
+            f"{r['moving_mse']:.5f} | {r['psnr']:.2f} | {r['ssim']:.1f} |"
+        )
 
 
 if __name__ == "__main__":
