@@ -12,9 +12,11 @@ from vp2.oracle.build import (
     asset_text,
     build_asset,
     build_table,
+    read_table,
     write_oracle_asset,
     write_table,
 )
+from vp2.oracle.merge import merge_tables
 from vp2.oracle.shipped import (
     ASSET_FILE,
     default_asset_path,
@@ -66,8 +68,7 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         const=RESULTS_DIR,
         default=None,
         metavar="DIR",
-        help=f"rebuild the asset from DIR's tables alone (default DIR: {RESULTS_DIR}); no "
-        "RUN_DIRs",
+        help=f"rebuild the asset from DIR's tables alone (default DIR: {RESULTS_DIR}); no RUN_DIRs",
     )
     p.add_argument(
         "--out",
@@ -75,6 +76,12 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         default=None,
         metavar="PATH",
         help=f"the asset file to write (default: the package's vp2/assets/{ASSET_FILE})",
+    )
+    p.add_argument(
+        "--update",
+        action="store_true",
+        help="with RUN_DIRs: replace only the runs' tasks in the existing table NAME, keeping "
+        "its other tasks' records (which must still match the task suite)",
     )
     p.add_argument("--note", default="", metavar="TEXT", help="free text stored with the table")
     p.add_argument(
@@ -98,9 +105,19 @@ def run_from_args(args: argparse.Namespace) -> int:
     if args.check and args.run_dirs:
         raise ValueError("--check compares the asset with the results: give no RUN_DIR")
     results = args.from_results if args.from_results is not None else args.results
+    if args.update and not args.run_dirs:
+        raise ValueError("--update replaces tasks of a table with RUN_DIRs: give the runs")
     if args.run_dirs:
-        meta, trials = build_table(args.run_dirs, name=args.table, note=args.note,
-                                   date=args.date)
+        meta, trials = build_table(args.run_dirs, name=args.table, note=args.note, date=args.date)
+        if args.update:
+            folder = Path(results) / str(meta["name"])
+            if not (folder / META_FILE).is_file():
+                raise ValueError(
+                    f"--update: no table {meta['name']!r} under {results} to update; drop "
+                    "--update to make it from the runs alone"
+                )
+            old_meta, old_trials = read_table(folder)
+            meta, trials = merge_tables(old_meta, old_trials, meta, trials)
         folder = write_table(meta, trials, results)
         print(f"wrote {folder} ({len(trials)} trials)")
     elif args.table or args.note or args.date:
@@ -116,7 +133,9 @@ def run_from_args(args: argparse.Namespace) -> int:
     for table in oracle.tables:
         print(table.describe())
         for name, t in table.tasks.items():
-            print(f"  {name:34s} {100 * t.rate:5.1f}%  ({t.successes}/{t.trials} trials, "
-                  f"{len(t.instances)} instances, {t.num_samples} samples)")
+            print(
+                f"  {name:34s} {100 * t.rate:5.1f}%  ({t.successes}/{t.trials} trials, "
+                f"{len(t.instances)} instances, {t.num_samples} samples)"
+            )
     print(f"wrote {out}")
     return 0
