@@ -14,12 +14,11 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
-
 import mujoco
 import numpy as np
 from PIL import Image
 
+from benchmarks import common
 from vp2.data.suite import TaskSuite
 from vp2.envs import TABLETOP_TASKS
 from vp2.envs.tabletop import OBJECT_NAMES, TabletopEnv
@@ -44,7 +43,7 @@ def object_pixels(env: TabletopEnv, state: np.ndarray) -> list[int]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = common.argument_parser(__spec__.name, __doc__)
     parser.add_argument("--suite", default=None, help="suite file (default: the shipped suite)")
     parser.add_argument("--sheet", default=None, help="write the contact sheet PNG here")
     parser.add_argument("--per-category", type=int, default=6)

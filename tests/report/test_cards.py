@@ -7,6 +7,7 @@ import json
 import pytest
 import yaml
 
+from vp2.data.suite import SUITE_FORMAT
 from vp2.report.cards import control_section, control_sections, metrics_section
 
 
@@ -37,7 +38,7 @@ def test_control_counts_finished_trials_per_environment(tmp_path):
     assert (row["successes"], row["trials"], row["seeds"], row["instances"]) == (2, 4, [0], 2)
     assert (row["samples"], row["steps"], row["tasks"]) == (50, 15, 2)
     assert row["solved"] == ["robodesk/open_slide", "robodesk/push_red"]
-    assert row["suite"] == "vp2-task-suite/3" and row["date"] == "2026-11-21"
+    assert row["suite"] == SUITE_FORMAT and row["date"] == "2026-11-21"
     # vp2.oracle.build.run_command, with the folder the run was written to
     assert row["command"] == ("vp2 run --model svg_prime:m.pt --tasks robodesk --num-instances 2 "
                               f"--seeds 0 --num-samples 50 --out {tmp_path / 'a'}")  # fmt: skip
