@@ -400,7 +400,7 @@ def test_a_zoo_model_shows_the_budget_its_card_records(comparison, tmp_path):
     assert "No family is trained by this comparison" in text
     assert (
         f"| svg | `zoo:svg_prime-tiny-tabletop` (svg_prime, {card['preset']}) | "
-        f"{card['parameters'] / 1e6:.2f} M | 15 (zoo card) | – | {card['steps']:,} | "
+        f"{card['parameters'] / 1e6:.2f} M | 30 (zoo card) | – | {card['steps']:,} | "
         f"{card['device']} | – |"
     ) in text
     (tmp_path / "zoo" / "svg.json").unlink()  # not from the zoo: no card, no budget
