@@ -70,33 +70,17 @@ def controlled_rollout(
     """Steps ``actions`` (T, A) from ``state`` as ``env.step`` does, one physics step per call
     of the compiled loop, and returns every physics step's ``ctrl`` (T * 500, nu) and the final
     full-physics state."""
-    from vp2.envs._substep_kernel import run_substeps
-
     model, data, st = env._model, env._data, env._stepper
     env.reset_to(state)
     controls = []
     for action in actions:
-        mujoco.mj_step1(model, data)
-        goal_pos, goal_ori = st._set_goal(action)
-        grip = np.clip(
-            st._grip_bias + st._grip_weight * np.array(st.grip.goal_qvel),
-            st._grip_low,
-            st._grip_high,
-        )
+        goals = st.begin_step(action)
         for i in range(st.n_substeps):
             if i:
                 mujoco.mj_step1(model, data)
-            run_substeps(
-                st._model_address, st._data_address, 1, st._qpos, st._qvel, st._qfrc_bias,
-                st._qM, st._ctrl, st._site_xpos, st._site_xmat, st._center_site, st._ref_site,
-                st._jacp_c, st._jacr_c, st._jacp, st._jacr, st._full_mass, st._qpos_index,
-                st._qvel_index, goal_pos, goal_ori, st._kp_pos, st._kd_pos, st._kp_ori,
-                st._kd_ori, st._nullspace_kp, np.asarray(st.osc.initial_joint, np.float64),
-                st._torques, st._arm_actuators, st._arm_low, st._arm_high, st._grip_actuators,
-                grip,
-            )  # fmt: skip
+            st.physics_steps(goals, 1)
             controls.append(data.ctrl.copy())
-        st.osc.new_update = st.grip.new_update = True
+        st.end_step()
     final = np.empty(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
     mujoco.mj_getState(model, data, final, mujoco.mjtState.mjSTATE_FULLPHYSICS)
     return np.array(controls), final

@@ -24,11 +24,7 @@ def envs():
 def _step_through_bindings(env: TabletopEnv, action: np.ndarray) -> None:
     """One control step made of Python calls per physics step (the loop the kernel replaced)."""
     st, m, d = env._stepper, env._model, env._data
-    mujoco.mj_step1(m, d)
-    goal_pos, goal_ori = st._set_goal(env.check_action(action))
-    grip = np.clip(
-        st._grip_bias + st._grip_weight * np.array(st.grip.goal_qvel), st._grip_low, st._grip_high
-    )
+    goal_pos, goal_ori, grip = st.begin_step(env.check_action(action))
     for i in range(st.n_substeps):
         if i:
             mujoco.mj_step1(m, d)
@@ -46,7 +42,7 @@ def _step_through_bindings(env: TabletopEnv, action: np.ndarray) -> None:
         d.ctrl[st._arm_actuators] = np.minimum(np.maximum(st._torques, st._arm_low), st._arm_high)
         d.ctrl[st._grip_actuators] = grip
         mujoco.mj_step2(m, d)
-    st.osc.new_update = st.grip.new_update = True
+    st.end_step()
 
 
 def test_the_compiled_loop_is_bit_identical_to_python_calls(envs):

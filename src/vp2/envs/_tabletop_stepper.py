@@ -127,16 +127,28 @@ class LeanStepper:
     # ---- stepping ---------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> None:
         """Advances one control step (``n_substeps`` physics steps) with a 4-D action."""
-        m, d = self.model, self.data
-        mujoco.mj_step1(m, d)
+        goals = self.begin_step(action)
+        self.physics_steps(goals, self.n_substeps)
+        self.end_step()
+
+    def begin_step(self, action: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The first physics step's ``mj_step1`` and the step's goals: ``(goal_pos, goal_ori,
+        grip_ctrl)`` for :meth:`physics_steps`."""
+        mujoco.mj_step1(self.model, self.data)
         goal_pos, goal_ori = self._set_goal(action)
         grip_ctrl = np.clip(
             self._grip_bias + self._grip_weight * np.array(self.grip.goal_qvel),
             self._grip_low,
             self._grip_high,
         )
+        return goal_pos, goal_ori, grip_ctrl
+
+    def physics_steps(self, goals: tuple[np.ndarray, np.ndarray, np.ndarray], n: int) -> None:
+        """``n`` physics steps under the OSC toward ``goals`` (:meth:`begin_step`), the first
+        one's ``mj_step1`` already done, in one compiled loop."""
+        goal_pos, goal_ori, grip_ctrl = goals
         run_substeps(
-            self._model_address, self._data_address, self.n_substeps,
+            self._model_address, self._data_address, n,
             self._qpos, self._qvel, self._qfrc_bias, self._qM, self._ctrl,
             self._site_xpos, self._site_xmat, self._center_site, self._ref_site,
             self._jacp_c, self._jacr_c, self._jacp, self._jacr, self._full_mass,
@@ -145,7 +157,9 @@ class LeanStepper:
             np.asarray(self.osc.initial_joint, np.float64), self._torques,
             self._arm_actuators, self._arm_low, self._arm_high, self._grip_actuators, grip_ctrl,
         )  # fmt: skip
-        # Leave the controllers as robosuite's run_controller would: the next read is fresh.
+
+    def end_step(self) -> None:
+        """Leaves the controllers as robosuite's run_controller would: the next read is fresh."""
         self.osc.new_update = True
         self.grip.new_update = True
 
