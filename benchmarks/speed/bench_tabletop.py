@@ -228,14 +228,9 @@ def bench_visibility(states: int) -> dict:
     visual geoms only. ``hidden_share``: objects with less than a quarter of their median
     visible pixels (mostly under the hand).
     """
+    from benchmarks.studies.tabletop_goal_pixels import object_pixels
+
     env = TabletopEnv("push_large_cube", seed=0, observation_size=None)
-    model, data = env._model, env._data
-    renderer = mujoco.Renderer(model, 64, 64)
-    renderer.enable_segmentation_rendering()
-    option = mujoco.MjvOption()
-    option.geomgroup[:] = 0
-    option.geomgroup[1] = 1  # robosuite's visual geoms
-    bodies = [model.body(f"{name}_main").id for name in OBJECT_NAMES]
     counts: dict[str, list[list[int]]] = {"reset": [], "after_12_policy_steps": []}
     for i in range(states):
         env.reset(seed=100_000 + i)
@@ -243,13 +238,7 @@ def bench_visibility(states: int) -> dict:
         for phase, steps in (("reset", 0), ("after_12_policy_steps", 12)):
             for _ in range(steps):
                 env.step(policy.act())
-            mujoco.mj_kinematics(model, data)
-            mujoco.mj_camlight(model, data)
-            renderer.update_scene(data, camera=RENDER_SPEC.camera, scene_option=option)
-            geom = renderer.render()[..., 0]
-            body = np.where(geom >= 0, model.geom_bodyid[np.clip(geom, 0, model.ngeom - 1)], -1)
-            counts[phase].append([int((body == b).sum()) for b in bodies])
-    renderer.close()
+            counts[phase].append(object_pixels(env, env.get_state()))
     env.close()
     out: dict = {"states": states}
     for phase, c in counts.items():
