@@ -100,6 +100,11 @@ class Env(gymnasium.Env, abc.ABC):  # type: ignore[type-arg]
     def serialize(self) -> dict[str, Any]:
         """JSON-able metadata that rebuilds an identical environment."""
 
+    @abc.abstractmethod
+    def reseed(self, seed: int | None) -> None:
+        """Reseeds the generator of ``reset()`` as a build with ``seed`` would have it (and
+        ``serialize()`` records ``seed``); the state is left as it is."""
+
     def set_goal(self, goal_state: np.ndarray | None) -> None:
         """Sets the goal that ``step`` reports ``info["success"]`` against."""
         self._goal_state = None if goal_state is None else np.asarray(goal_state, np.float64)

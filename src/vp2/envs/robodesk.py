@@ -422,6 +422,10 @@ class RoboDeskEnv(Env):
             self._renderer.close()
             self._renderer = None
 
+    def reseed(self, seed: int | None) -> None:
+        self._seed = seed
+        self._rng = np.random.default_rng(seed)
+
     def serialize(self) -> dict[str, Any]:
         return {
             "name": self.name,

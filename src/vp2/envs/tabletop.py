@@ -347,6 +347,10 @@ class TabletopEnv(Env):
         names = self.scene.textures.names
         return {obj: names[int(t)] for obj, t in zip(OBJECT_NAMES, self._textures, strict=True)}
 
+    def reseed(self, seed: int | None) -> None:
+        self.seed = seed
+        self._rng = np.random.default_rng(seed)
+
     def serialize(self) -> dict[str, Any]:
         """``{"name", "kwargs"}`` for :func:`vp2.envs.make_env_from_metadata`, plus the textures.
 

@@ -25,8 +25,9 @@ from vp2.models.contract import CheckedPredictor
 from vp2.utils.executors.local import spawn_pool
 from vp2.utils.tensors import images_to_float
 
-#: Environments kept alive per process by the oracle (tabletop instances differ in textures,
-#: so each instance rebuilds its env; a few cached cover a trial and its retries).
+#: Environments kept alive per process by the oracle: one per task category and observation
+#: setting (instances of a category share one, :mod:`vp2.envs.cache`); four cover a run's
+#: categories in order and a trial's retries.
 _ENV_CACHE_SIZE = 4
 
 _PROCESS_ENVS = EnvCache(_ENV_CACHE_SIZE)
