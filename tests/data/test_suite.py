@@ -7,6 +7,11 @@ from vp2.envs import TABLETOP_TASKS, TASK_NAMES
 from vp2.envs.tabletop import TabletopEnv
 
 
+#: A random-check seed whose second try pushes an object of the first small-cube instance more
+#: than 5 cm (the zero action does not), and whose other tries do not end there.
+SEED = 7
+
+
 @pytest.fixture(scope="module")
 def shipped():
     return TaskSuite.load()
@@ -111,3 +116,35 @@ def test_full_regeneration_reproduces_the_shipped_file(tmp_path):
     suite.save(out)
     shipped_bytes = (resources.files("vp2") / "assets" / suite_lib.SHIPPED_SUITE).read_bytes()
     assert out.read_bytes() == shipped_bytes
+
+
+def test_tabletop_instances_need_the_agent(shipped):
+    # The rule that rejects a tabletop instance a trial solves without aiming: the shipped
+    # instance passes it with the generator's seed; a goal the zero action reaches, and a goal
+    # only the second random try of seed SEED reaches, are both found; with another seed the
+    # random tries miss the second.
+    inst = shipped.for_task("tabletop/push_small_cube")[0]
+    env = inst.make_env(observation_size=None)
+    try:
+        check_seed = int(np.random.SeedSequence(inst.seed).generate_state(4)[3])
+        assert not suite_lib._solved_without_intent(env, inst.init_state, inst.goal_state, check_seed)
+        np.testing.assert_array_equal(env.get_state(), inst.init_state)  # left at the start
+
+        env.step(np.zeros(4))
+        settled = env.get_state()
+        assert suite_lib._solved_without_intent(env, inst.init_state, settled, check_seed)
+
+        rng = np.random.default_rng(SEED)
+        tries = rng.uniform(-1.0, 1.0, (suite_lib.RANDOM_CHECK_TRIES, 15, 4))
+        env.reset_to(inst.init_state)
+        for action in [np.zeros(4), *tries[1, 1:]]:
+            env.step(action)
+        reached = env.get_state()
+        env.reset_to(inst.init_state)
+        for _ in range(15):
+            env.step(np.zeros(4))
+        assert not env.is_success(reached)  # the zero action does not reach it
+        assert suite_lib._solved_without_intent(env, inst.init_state, reached, SEED)
+        assert not suite_lib._solved_without_intent(env, inst.init_state, reached, SEED + 1)
+    finally:
+        env.close()

@@ -17,7 +17,15 @@ criterion is rejected. On the tabletop, whose criterion is relative to the goal,
 as in the original release, where the push ended: the policy runs all :data:`HORIZON` steps,
 the trajectory must pass the original's keep filter (the task's object moved more than
 :data:`KEEP_MOTION`, none fell off), and ``k`` is the first step within the criterion of the
-end state (:func:`_tabletop_trajectory`).
+end state (:func:`_tabletop_trajectory`). A tabletop instance must also need the agent
+(:func:`_solved_without_intent`): it is rejected when holding the zero action for a trial's
+steps reaches the goal (an object still rolling or settling), or when uniform random actions,
+as the benchmark's random baseline draws them, reach it in any of :data:`RANDOM_CHECK_TRIES`
+tries. Measured on suite v4, which had neither rule: 7 of its 100 tabletop instances were
+solved by the zero action alone and random actions solved 18% of the tries (71 of 400); on
+the 66 that pass both rules, new random tries solved 2.3% (6 of 264)
+(docs/findings/tabletop-original.md). RoboDesk, whose random baseline solves 2 of 70 trials
+without them, has neither rule.
 
 Generation is deterministic: attempt ``k`` of a task uses a seed derived from
 ``(suite seed, task, k)``, attempts are accepted in order, and the file is written with fixed
@@ -65,7 +73,9 @@ MAX_INSTANCE_ACTIONS = TRIAL_FREE_ACTIONS - 2
 #: The look-back ``L`` (scripted actions between the initial state and the first success) is
 #: drawn uniformly from this inclusive range per instance.
 LOOKBACK_RANGE = (4, MAX_INSTANCE_ACTIONS)
-SUITE_FORMAT = "vp2-task-suite/4"
+#: Random-action tries that must all fail for a tabletop instance to be accepted.
+RANDOM_CHECK_TRIES = 4
+SUITE_FORMAT = "vp2-task-suite/5"
 SHIPPED_SUITE = "task_suite.npz"
 
 
@@ -197,8 +207,12 @@ class TaskSuite:
             zf.writestr(_zipinfo("meta.json"), json.dumps(meta, sort_keys=True, indent=1))
 
     @classmethod
-    def load(cls, path: str | Path | None = None) -> TaskSuite:
-        """Loads a suite file; ``None`` loads the suite shipped with the package."""
+    def load(cls, path: str | Path | None = None, *, format: str = SUITE_FORMAT) -> TaskSuite:  # noqa: A002
+        """Loads a suite file; ``None`` loads the suite shipped with the package.
+
+        ``format``: the version the file must be; an earlier version's file (the same layout
+        since ``vp2-task-suite/3``) loads when it is named, e.g. to compare two suites.
+        """
         if path is None:
             ref = resources.files("vp2") / "assets" / SHIPPED_SUITE
             if not ref.is_file():
@@ -207,13 +221,13 @@ class TaskSuite:
                     "it with `vp2 tasks generate`"
                 )
             with resources.as_file(ref) as p:
-                return cls.load(p)
+                return cls.load(p, format=format)
         try:
             with zipfile.ZipFile(path) as zf:
                 meta = json.loads(zf.read("meta.json"))
             with np.load(path, allow_pickle=False) as z:
-                if meta.get("format") != SUITE_FORMAT:
-                    raise ValueError(f"format {meta.get('format')!r}, expected {SUITE_FORMAT!r}")
+                if meta.get("format") != format:
+                    raise ValueError(f"format {meta.get('format')!r}, expected {format!r}")
                 instances = []
                 # Categories in the order they were saved (JSON keys are sorted by name).
                 for task, tm in sorted(meta["tasks"].items(), key=lambda kv: kv[1]["prefix"]):
@@ -277,7 +291,7 @@ def generate_instance(
         env = _env(task)
     elif env.name != task:
         raise ValueError(f"generate_instance: the env is {env.name!r}, not the task {task!r}")
-    reset_seed, policy_seed, lookback_seed = np.random.SeedSequence(seed).generate_state(3)
+    reset_seed, policy_seed, lookback_seed, check_seed = np.random.SeedSequence(seed).generate_state(4)
     lookback = int(np.random.default_rng(lookback_seed).integers(LOOKBACK_RANGE[0], LOOKBACK_RANGE[1] + 1))
     env.reset(seed=int(reset_seed))
     policy = make_task_policy(env, np.random.default_rng(policy_seed))
@@ -319,6 +333,10 @@ def generate_instance(
     env.reset_to(init_state)
     if env.is_success(goal_state):  # e.g. a tabletop object already within 5 cm of its goal
         return None
+    if split_name(task)[0] == "tabletop" and _solved_without_intent(
+        env, init_state, goal_state, int(check_seed)
+    ):
+        return None
     return TaskInstance(
         task=task,
         index=index,
@@ -330,6 +348,30 @@ def generate_instance(
         env_meta=env.serialize(),
         start_step=start,
     )
+
+
+def _solved_without_intent(env: Env, init_state: np.ndarray, goal_state: np.ndarray, seed: int) -> bool:
+    """Whether a trial reaches ``goal_state`` from ``init_state`` without aiming: holding the
+    zero action for :data:`~vp2.spec.NUM_CONTROL_STEPS` steps, or uniform random actions in
+    ``[-1, 1]`` after the trial's first zero action, in any of :data:`RANDOM_CHECK_TRIES` tries
+    drawn from ``seed``. Leaves ``env`` at ``init_state``."""
+    zero = np.zeros(env.action_dim)
+    rng = np.random.default_rng(seed)
+    tries = [np.zeros((NUM_CONTROL_STEPS, env.action_dim))]
+    for _ in range(RANDOM_CHECK_TRIES):
+        actions = rng.uniform(-1.0, 1.0, (NUM_CONTROL_STEPS, env.action_dim))
+        actions[0] = zero
+        tries.append(actions)
+    try:
+        for actions in tries:
+            env.reset_to(init_state)
+            for action in actions:
+                env.step(action)
+                if env.is_success(goal_state):
+                    return True
+        return False
+    finally:
+        env.reset_to(init_state)
 
 
 def _succeeds(env: Env, state: np.ndarray, goal: np.ndarray) -> bool:
