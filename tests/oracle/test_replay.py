@@ -65,7 +65,7 @@ def _first_records(root: Path = RESULTS) -> dict[str, tuple[dict, dict]]:
 
 #: Why the committed tabletop oracle records no longer replay.
 SUITE_V3 = ("the shipped oracle tables' tabletop rows are suite v3's (the old scene); they replay "
-            "once the tables are measured on suite v4")
+            "once the tables are measured on the current suite")
 
 
 def _params() -> list:

@@ -299,15 +299,15 @@ def test_the_packaged_asset_loads_if_there_is_one(monkeypatch):
         assert oracle is None
     else:
         assert oracle is not None and oracle.tables
-        # Measured on suite v3, whose RoboDesk instances v4 keeps (the tabletop rows are
-        # re-measured on v4 next).
+        # Measured on suite v3, whose RoboDesk instances the current suite keeps (the tabletop
+        # rows are re-measured on it next).
         assert all(t.suite_format in ("vp2-task-suite/3", SUITE_FORMAT) and t.tasks
                    for t in oracle.tables)
 
 
 @pytest.mark.xfail(
     reason="the shipped oracle table's tabletop rows were measured on suite v3; re-measured on "
-    "suite v4 next", strict=True
+    "the current suite next", strict=True
 )
 def test_the_shipped_table_normalises_a_run_of_the_shipped_classifiers(monkeypatch):
     """A 50-sample run of every category, planned as `vp2 run` plans today (the shipped

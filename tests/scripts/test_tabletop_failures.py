@@ -38,7 +38,7 @@ def test_a_trial_is_classed_by_its_objects_distances(pushed, others, height, lab
 
 @pytest.mark.xfail(
     reason="the committed tabletop records are suite v3's (the old scene); they replay once the "
-    "samples-50 table's tabletop rows are measured on suite v4",
+    "samples-50 table's tabletop rows are measured on the current suite",
     strict=True,
 )
 def test_a_committed_tabletop_record_replays_to_its_outcome():

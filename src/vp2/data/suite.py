@@ -21,11 +21,11 @@ end state (:func:`_tabletop_trajectory`). A tabletop instance must also need the
 (:func:`_solved_without_intent`): it is rejected when holding the zero action for a trial's
 steps reaches the goal (an object still rolling or settling), or when uniform random actions,
 as the benchmark's random baseline draws them, reach it in any of :data:`RANDOM_CHECK_TRIES`
-tries. Measured on suite v4, which had neither rule: 7 of its 100 tabletop instances were
-solved by the zero action alone and random actions solved 18% of the tries (71 of 400); on
-the 66 that pass both rules, new random tries solved 2.3% (6 of 264)
-(docs/findings/tabletop-original.md). RoboDesk, whose random baseline solves 2 of 70 trials
-without them, has neither rule.
+tries. Measured (``benchmarks.studies.tabletop_trivial_solves``, 4 fresh random tries per
+instance): on suite v4, which had neither rule, 7 of the 100 tabletop instances were solved by
+the zero action alone and random actions solved 17.2% of the tries (69 of 400); on suite v5,
+none and 4.2% (17 of 400) (docs/findings/tabletop-original.md). RoboDesk, whose random
+baseline solves 2 of 70 trials without them, has neither rule.
 
 Generation is deterministic: attempt ``k`` of a task uses a seed derived from
 ``(suite seed, task, k)``, attempts are accepted in order, and the file is written with fixed
