@@ -6,7 +6,6 @@ from vp2.data.suite import SUITE_COUNTS, TaskSuite, generate_instance, replay_in
 from vp2.envs import TABLETOP_TASKS, TASK_NAMES
 from vp2.envs.tabletop import TabletopEnv
 
-
 #: A random-check seed whose second try pushes an object of the first small-cube instance more
 #: than 5 cm (the zero action does not), and whose other tries do not end there.
 SEED = 7
@@ -94,6 +93,27 @@ def test_bad_suite_file_is_reported(tmp_path):
     bad.write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="not a readable vp2 task suite"):
         TaskSuite.load(bad)
+
+
+def test_an_earlier_version_loads_only_when_named(shipped, tmp_path):
+    # A file of another format version is refused unless that version is asked for.
+    import json
+    import zipfile
+
+    path = tmp_path / "suite.npz"
+    TaskSuite(shipped.for_task("robodesk/push_red")[:2]).save(path)
+    with zipfile.ZipFile(path) as zf:
+        entries = {name: zf.read(name) for name in zf.namelist()}
+    meta = json.loads(entries["meta.json"])
+    meta["format"] = "vp2-task-suite/4"
+    entries["meta.json"] = json.dumps(meta).encode()
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, data in entries.items():
+            zf.writestr(name, data)
+    with pytest.raises(ValueError, match=r"format 'vp2-task-suite/4', expected 'vp2-task-suite/5'"):
+        TaskSuite.load(path)
+    old = TaskSuite.load(path, format="vp2-task-suite/4")
+    assert [i.fingerprint for i in old] == [i.fingerprint for i in shipped.for_task("robodesk/push_red")[:2]]
 
 
 @pytest.mark.slow
