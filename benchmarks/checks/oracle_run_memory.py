@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from benchmarks.common import argument_parser, print_header
+from vp2.run.run_dir import RunDir
 
 #: Run in a child process: optionally restores the old cache key, then runs the CLI.
 _CHILD = """
@@ -56,7 +57,7 @@ def measure(mode: str, task: str, instances: int, out: Path) -> list[float]:
             "--no-progress", "--out", str(out)]
     proc = subprocess.Popen([sys.executable, "-c", _CHILD, mode, *args],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    trials = out / "trials.jsonl"
+    trials = RunDir(out).trials_file
     after: list[float] = []
     last = None
     while proc.poll() is None:
