@@ -23,19 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import common
-from vp2.data.suite import SUITE_FORMAT, TaskSuite
+from vp2.data.suite import SUITE_FORMAT, TaskSuite, first_success, random_action_tries
 from vp2.envs import TABLETOP_TASKS
 from vp2.spec import NUM_CONTROL_STEPS
-
-
-def first_success(env, inst, actions: np.ndarray) -> int | None:
-    """The step (0-based) after which ``actions`` first reach the instance's goal, else None."""
-    env.reset_to(inst.init_state)
-    for step, action in enumerate(actions):
-        env.step(action)
-        if env.is_success(inst.goal_state):
-            return step
-    return None
 
 
 def measure(suite: TaskSuite, tries: int, seed: int) -> list[dict]:
@@ -45,13 +35,11 @@ def measure(suite: TaskSuite, tries: int, seed: int) -> list[dict]:
             env = inst.make_env(observation_size=None)
             env.reset_to(inst.init_state)
             start = env.goal_distance(env.object_positions(), inst.goal_state)
-            zero = first_success(env, inst, np.zeros((NUM_CONTROL_STEPS, env.action_dim)))
+            zero = first_success(env, inst.init_state, inst.goal_state,
+                                 np.zeros((NUM_CONTROL_STEPS, env.action_dim)))
             rng = np.random.default_rng([seed, inst.index, TABLETOP_TASKS.index(task)])
-            random = []
-            for _ in range(tries):
-                actions = rng.uniform(-1.0, 1.0, (NUM_CONTROL_STEPS, env.action_dim))
-                actions[0] = 0.0
-                random.append(first_success(env, inst, actions))
+            random = [first_success(env, inst.init_state, inst.goal_state, actions)
+                      for actions in random_action_tries(rng, tries, env.action_dim)]
             records.append({"task": f"tabletop/{task}", "instance": inst.index,
                             "start_distance": round(start, 4), "zero_action": zero,
                             "random": random})

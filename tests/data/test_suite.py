@@ -154,16 +154,14 @@ def test_tabletop_instances_need_the_agent(shipped):
         settled = env.get_state()
         assert suite_lib._solved_without_intent(env, inst.init_state, settled, check_seed)
 
-        rng = np.random.default_rng(SEED)
-        tries = rng.uniform(-1.0, 1.0, (suite_lib.RANDOM_CHECK_TRIES, 15, 4))
+        tries = suite_lib.random_action_tries(np.random.default_rng(SEED), suite_lib.RANDOM_CHECK_TRIES, 4)
+        assert tries.shape == (4, 15, 4) and not tries[:, 0].any() and np.abs(tries).max() <= 1
         env.reset_to(inst.init_state)
-        for action in [np.zeros(4), *tries[1, 1:]]:
+        for action in tries[1]:
             env.step(action)
         reached = env.get_state()
-        env.reset_to(inst.init_state)
-        for _ in range(15):
-            env.step(np.zeros(4))
-        assert not env.is_success(reached)  # the zero action does not reach it
+        # the zero action does not reach it
+        assert suite_lib.first_success(env, inst.init_state, reached, np.zeros((15, 4))) is None
         assert suite_lib._solved_without_intent(env, inst.init_state, reached, SEED)
         assert not suite_lib._solved_without_intent(env, inst.init_state, reached, SEED + 1)
     finally:

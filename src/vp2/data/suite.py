@@ -350,26 +350,35 @@ def generate_instance(
     )
 
 
+def random_action_tries(rng: np.random.Generator, tries: int, action_dim: int) -> np.ndarray:
+    """``(tries, NUM_CONTROL_STEPS, action_dim)`` uniform random actions in ``[-1, 1]``, each try
+    starting with the trial's zero action, as the benchmark's random baseline plays a trial."""
+    actions = rng.uniform(-1.0, 1.0, (tries, NUM_CONTROL_STEPS, action_dim))
+    actions[:, 0] = 0.0
+    return actions
+
+
+def first_success(env: Env, init_state: np.ndarray, goal_state: np.ndarray, actions: np.ndarray) -> int | None:
+    """The index of the first of ``actions``, stepped from ``init_state``, after which the
+    state is within the success criterion of ``goal_state``; ``None`` if none is."""
+    env.reset_to(init_state)
+    for step, action in enumerate(actions):
+        env.step(action)
+        if env.is_success(goal_state):
+            return step
+    return None
+
+
 def _solved_without_intent(env: Env, init_state: np.ndarray, goal_state: np.ndarray, seed: int) -> bool:
     """Whether a trial reaches ``goal_state`` from ``init_state`` without aiming: holding the
-    zero action for :data:`~vp2.spec.NUM_CONTROL_STEPS` steps, or uniform random actions in
-    ``[-1, 1]`` after the trial's first zero action, in any of :data:`RANDOM_CHECK_TRIES` tries
-    drawn from ``seed``. Leaves ``env`` at ``init_state``."""
-    zero = np.zeros(env.action_dim)
-    rng = np.random.default_rng(seed)
-    tries = [np.zeros((NUM_CONTROL_STEPS, env.action_dim))]
-    for _ in range(RANDOM_CHECK_TRIES):
-        actions = rng.uniform(-1.0, 1.0, (NUM_CONTROL_STEPS, env.action_dim))
-        actions[0] = zero
-        tries.append(actions)
+    zero action for :data:`~vp2.spec.NUM_CONTROL_STEPS` steps, or any of
+    :data:`RANDOM_CHECK_TRIES` random-action tries drawn from ``seed``
+    (:func:`random_action_tries`). Leaves ``env`` at ``init_state``."""
+    zero = np.zeros((1, NUM_CONTROL_STEPS, env.action_dim))
+    tries = random_action_tries(np.random.default_rng(seed), RANDOM_CHECK_TRIES, env.action_dim)
     try:
-        for actions in tries:
-            env.reset_to(init_state)
-            for action in actions:
-                env.step(action)
-                if env.is_success(goal_state):
-                    return True
-        return False
+        return any(first_success(env, init_state, goal_state, actions) is not None
+                   for actions in np.concatenate([zero, tries]))
     finally:
         env.reset_to(init_state)
 
