@@ -17,8 +17,14 @@ below 200 the table also shows the 200-sample step extrapolated (marked).
 The floor (tabletop): the same physics steps (N x 10 control steps x 500) as plain ``mj_step``
 calls on one core, in MuJoCo's own compiled loop (``mujoco.rollout``): the controls that the
 stepping computed for a few random candidates from the planning state, replayed open-loop.
-"x floor" is the planning step over that time; the targets are <= 1.3x on one core and <= 0.75x
+"x floor" is the planning step over that time, the floor timed again before every repeat and
+the ratio taken within each repeat (median over repeats); the targets are <= 1.3x on one core and <= 0.75x
 with both.
+
+``--cull both`` times every worker count with the renderer's frustum culling off and on
+(``VP2_RENDER_CULL``), alternating, in one run; ``--one-core`` pins this process and its
+workers to the first CPU and keeps Mesa's rasteriser in the calling thread
+(``LP_NUM_THREADS=0``), so that "one worker" uses one core and nothing else.
 """
 
 from __future__ import annotations
@@ -33,6 +39,8 @@ import numpy as np
 
 from benchmarks import common
 from vp2.envs import make_env
+from vp2.envs.rendering import CULL_ENV_VAR
+from vp2.models import simulator
 from vp2.models.simulator import SimulatorModel
 from vp2.planning import Observation, PlannerConfig, PlanningAgent
 
@@ -86,30 +94,49 @@ def controlled_rollout(
     return np.array(controls), final
 
 
-def physics_floor(env, state: np.ndarray, num_samples: int, batch: int = 4) -> float:
+class PhysicsFloor:
     """Seconds of ``num_samples`` x 10 control steps of plain ``mj_step`` on one core: the
     physics steps of ``batch`` random candidates (their controls recorded from the controlled
     stepping) replayed open-loop by MuJoCo's compiled ``mujoco.rollout``, scaled linearly.
-    Checks that the replay reaches the controlled rollouts' states (the same physics steps)."""
-    from mujoco import rollout
+    Checks once that the replay reaches the controlled rollouts' states (the same physics
+    steps); :meth:`time` replays them again, so that every repeat of a run has its own floor."""
 
-    model, data = env._model, env._data
-    rng = np.random.default_rng(0)
-    recorded = [controlled_rollout(env, state, rng.uniform(-1, 1, (10, env.action_dim)))
-                for _ in range(batch)]  # fmt: skip
-    env.reset_to(state)
-    mujoco.mj_forward(model, data)
-    initial = np.empty(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
-    mujoco.mj_getState(model, data, initial, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    controls = np.stack([c for c, _ in recorded])
-    initial = np.tile(initial, (batch, 1))
-    rollout.rollout(model, data, initial[:1], controls[:1, :10])  # warm-up
-    t0 = time.perf_counter()
-    states, _ = rollout.rollout(model, data, initial, controls)
-    seconds = time.perf_counter() - t0
-    gap = max(float(np.abs(states[i, -1] - final).max()) for i, (_, final) in enumerate(recorded))
-    print(f"floor: {batch} replayed candidates end {gap:.1e} from the controlled ones")
-    return seconds * num_samples / batch
+    def __init__(self, env, state: np.ndarray, num_samples: int, batch: int = 4):
+        from mujoco import rollout
+
+        self._rollout = rollout.rollout
+        self.model, self.data = env._model, env._data
+        self.scale = num_samples / batch
+        rng = np.random.default_rng(0)
+        recorded = [controlled_rollout(env, state, rng.uniform(-1, 1, (10, env.action_dim)))
+                    for _ in range(batch)]  # fmt: skip
+        env.reset_to(state)
+        mujoco.mj_forward(self.model, self.data)
+        size = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        initial = np.empty(size)
+        mujoco.mj_getState(self.model, self.data, initial, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        self.controls = np.stack([c for c, _ in recorded])
+        self.initial = np.tile(initial, (batch, 1))
+        self._rollout(self.model, self.data, self.initial[:1], self.controls[:1, :10])  # warm-up
+        states, _ = self._rollout(self.model, self.data, self.initial, self.controls)
+        gap = max(float(np.abs(states[i, -1] - final).max())
+                  for i, (_, final) in enumerate(recorded))  # fmt: skip
+        print(f"floor: {batch} replayed candidates end {gap:.1e} from the controlled ones")
+
+    def time(self) -> tuple[float, float]:
+        """Wall and CPU seconds of the scaled replay."""
+        t0, c0 = time.perf_counter(), time.process_time()
+        self._rollout(self.model, self.data, self.initial, self.controls)
+        return ((time.perf_counter() - t0) * self.scale, (time.process_time() - c0) * self.scale)
+
+
+def set_culling(cull: str) -> None:
+    """Frustum culling on ("1") or off ("0") for the pools started after and for the
+    environments one-worker models keep in this process."""
+    os.environ[CULL_ENV_VAR] = cull
+    for env in simulator._PROCESS_ENVS._envs.values():
+        if getattr(env, "_renderer", None) is not None:
+            env._renderer.cull = cull == "1"
 
 
 def main() -> None:
@@ -119,7 +146,15 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1, help="timed steps per worker count")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cull", choices=["on", "off", "both"], default="on",
+                        help="the renderer's frustum culling (both: off and on, alternating)")
+    parser.add_argument("--one-core", action="store_true",
+                        help="pin everything to CPU 0, Mesa's rasteriser in the calling thread")
     args = parser.parse_args()
+    if args.one_core:
+        os.environ["LP_NUM_THREADS"] = "0"  # before the first GL context
+        os.sched_setaffinity(0, {0})
+    culls = {"on": ["1"], "off": ["0"], "both": ["0", "1"]}[args.cull]
 
     rows = []
     for task in args.tasks:
@@ -127,57 +162,80 @@ def main() -> None:
         obs, goal = observation(env, args.seed)
         step_s, render_s = _sim_breakdown(env, obs.state)
         floor = (
-            physics_floor(env, obs.state, args.num_samples) if task.startswith("tabletop") else None
+            PhysicsFloor(env, obs.state, args.num_samples) if task.startswith("tabletop") else None
         )
-        env.close()
-        models = {w: SimulatorModel(action_dim=env.action_dim, num_workers=w) for w in args.workers}
-        times: dict[int, list[float]] = {w: [] for w in args.workers}
-        startup: dict[int, float] = {}
+        models = {(w, cull): SimulatorModel(action_dim=env.action_dim, num_workers=w)
+                  for cull in culls for w in args.workers}  # fmt: skip
+        times: dict[tuple[int, str], list[float]] = {key: [] for key in models}
+        floors: list[float] = []
+        cpu_floors: list[float] = []
+        cpu: dict[tuple[int, str], list[float]] = {key: [] for key in models}
+        startup: dict[tuple[int, str], float] = {}
         try:
-            for w, model in models.items():
-                warm = PlanningAgent(model, PlannerConfig(num_samples=w))
+            for key, model in models.items():
+                set_culling(key[1])  # a pool starts here: its workers read the switch
+                warm = PlanningAgent(model, PlannerConfig(num_samples=key[0]))
                 warm.reset(task, goal, seed=0)
                 t0 = time.perf_counter()
                 warm.act(obs)
-                startup[w] = time.perf_counter() - t0
+                startup[key] = time.perf_counter() - t0
             for r in range(args.repeats):
-                for w, model in models.items():
+                if floor is not None:
+                    wall, cpu_s = floor.time()
+                    floors.append(wall)
+                    cpu_floors.append(cpu_s)
+                for key, model in models.items():
                     agent = PlanningAgent(model, PlannerConfig(num_samples=args.num_samples))
                     agent.reset(task, goal, seed=r)
-                    t0 = time.perf_counter()
+                    set_culling(key[1])
+                    t0, c0 = time.perf_counter(), time.process_time()
                     agent.act(obs)
-                    times[w].append(time.perf_counter() - t0)
+                    times[key].append(time.perf_counter() - t0)
+                    cpu[key].append(time.process_time() - c0)
         finally:
             for model in models.values():
                 model.close()
-        base = statistics.median(times[args.workers[0]])
-        for w in args.workers:
-            t = statistics.median(times[w])
-            rows.append((task, w, t, startup[w], base / t, step_s, render_s, times[w], floor))
+            env.close()
+        base = statistics.median(times[next(iter(models))])
+        for key in models:
+            t = statistics.median(times[key])
+            # Each repeat's step over that repeat's floor: the ratio within a repeat.
+            ratio = (statistics.median(a / b for a, b in zip(times[key], floors, strict=True))
+                     if floors else None)  # fmt: skip
+            # One worker simulates in this process: its CPU time is the whole step's (steal
+            # time of a shared VM left out); a pool's workers are other processes.
+            cpu_ratio = (statistics.median(a / b for a, b in zip(cpu[key], cpu_floors, strict=True))
+                         if floors and key[0] == 1 else None)  # fmt: skip
+            rows.append((task, key, t, startup[key], base / t, step_s, render_s, times[key],
+                         floors, ratio, cpu_ratio))
 
     print(
         f"machine: {platform.machine()} {os.cpu_count()} cores (load {os.getloadavg()[0]:.1f} at "
         f"the end), {args.num_samples} samples x 10 steps, {args.repeats} timed step(s) per row"
+        f"{', pinned to one core, LP_NUM_THREADS=0' if args.one_core else ''}"
     )
     extrapolate = args.num_samples != SPEC_SAMPLES
-    head = "| task | workers | planning step s (median) | per sample ms | speed-up | pool start s |"
-    rule = "|---|---|---|---|---|---|"
+    head = ("| task | workers | culling | planning step s (median) | per sample ms | speed-up |"
+            " pool start s |")
+    rule = "|---|---|---|---|---|---|---|"
     if extrapolate:
         head += f" {SPEC_SAMPLES}-sample step s (extrapolated) |"
         rule += "---|"
-    head += " env step ms | render ms | floor s | x floor | runs s |"
-    rule += "---|---|---|---|---|"
+    head += " env step ms | render ms | floor s | x floor | x floor, CPU time | runs s |"
+    rule += "---|---|---|---|---|---|"
     print(head)
     print(rule)
-    for task, w, t, start, speedup, step_s, render_s, runs, floor in rows:
+    for task, (w, cull), t, start, speedup, step_s, render_s, runs, floors, ratio, cpu_ratio in rows:
         line = (
-            f"| {task} | {w} | {t:.1f} | {1000 * t / args.num_samples:.0f} | {speedup:.2f}x | "
-            f"{start:.1f} |"
+            f"| {task} | {w} | {'on' if cull == '1' else 'off'} | {t:.1f} | "
+            f"{1000 * t / args.num_samples:.0f} | {speedup:.2f}x | {start:.1f} |"
         )
         if extrapolate:
             line += f" {t * SPEC_SAMPLES / args.num_samples:.0f} |"
         line += f" {1000 * step_s:.0f} | {1000 * render_s:.1f} |"
-        line += " - | - |" if floor is None else f" {floor:.1f} | {t / floor:.2f}x |"
+        line += (" - | - |" if ratio is None else
+                 f" {', '.join(f'{x:.1f}' for x in floors)} | {ratio:.2f}x |")  # fmt: skip
+        line += " - |" if cpu_ratio is None else f" {cpu_ratio:.2f}x |"
         line += f" {', '.join(f'{x:.1f}' for x in runs)} |"
         print(line)
 
