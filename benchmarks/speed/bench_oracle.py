@@ -39,7 +39,7 @@ import numpy as np
 
 from benchmarks import common
 from vp2.envs import make_env
-from vp2.envs.rendering import CULL_ENV_VAR
+from vp2.envs.culling import CULL_ENV_VAR
 from vp2.models import simulator
 from vp2.models.simulator import SimulatorModel
 from vp2.planning import Observation, PlannerConfig, PlanningAgent

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from vp2.envs.rendering import FrustumCulling
+from vp2.envs.culling import FrustumCulling
 from vp2.envs.tabletop import TabletopEnv
 
 

@@ -1,7 +1,8 @@
-"""Replaying oracle trials against their records: a fresh 2-step trial of the runner, and the
-first tabletop and RoboDesk records behind the shipped tables (``results/oracle``): the tabletop
-one whole and exactly (measured with the CPU-independent arithmetic), the RoboDesk one's first
-two steps within ``ATOL`` (its rows predate that arithmetic)."""
+"""Replaying oracle trials against their records: a fresh 2-step trial of the runner, and
+records behind the shipped tables (``results/oracle``): the shortest successful tabletop trial
+with at least two planned steps whole and exactly (measured with the CPU-independent
+arithmetic; the shortest, so that CI replays ~2 planning steps rather than 4), the first
+RoboDesk record's first two steps within ``ATOL`` (its rows predate that arithmetic)."""
 
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ def test_a_fresh_oracle_trial_replays_to_its_record(tmp_path, monkeypatch):
         progress=False, device="cpu"))
     # Through results/ and back, as the committed records are read.
     write_table(*build_table([tmp_path / "run"], name="replay"), tmp_path / "results")
-    meta, record = _first_records(tmp_path / "results")["tabletop"]
+    meta, record = _replayed_records(tmp_path / "results")["tabletop"]
     assert (record["task"], record["num_samples"], len(record["actions"])) == (task, 4, 2)
     replay = replay_record(record, settings=meta["settings"])
     assert replay.mismatch() is None and replay.max_abs_diff <= 1e-5
@@ -53,20 +54,35 @@ def test_a_fresh_oracle_trial_replays_to_its_record(tmp_path, monkeypatch):
         replay_record(record, steps=3)
 
 
-def _first_records(root: Path = RESULTS) -> dict[str, tuple[dict, dict]]:
-    """The first record of each environment in ``root/*/trials.jsonl`` (default:
-    results/oracle), with its table's meta.json."""
+#: Fewest actions of the replayed tabletop trial: the zero action and two planned steps, so
+#: that a planned step's end state is planned from again.
+MIN_TABLETOP_ACTIONS = 3
+
+
+def _replayed_records(root: Path = RESULTS) -> dict[str, tuple[dict, dict]]:
+    """Per environment, the record the replay test replays from ``root/*/trials.jsonl``
+    (default: results/oracle), with its table's meta.json: RoboDesk's first record; the
+    tabletop's shortest successful one with at least ``MIN_TABLETOP_ACTIONS`` actions (the
+    first of equals, tables in name order), or its first record if none is."""
     out: dict[str, tuple[dict, dict]] = {}
+    shortest: tuple[int, dict, dict] | None = None
     folders = sorted(d for d in root.iterdir() if d.is_dir()) if root.is_dir() else []
     for folder in folders:
         meta, trials = read_table(folder)
         for record in trials:
-            out.setdefault(record["task"].split("/")[0], (meta, record))
+            env = record["task"].split("/")[0]
+            out.setdefault(env, (meta, record))
+            length = len(record["actions"])
+            if (env == "tabletop" and record["success"] and length >= MIN_TABLETOP_ACTIONS
+                    and (shortest is None or length < shortest[0])):
+                shortest = (length, meta, record)
+    if shortest is not None:
+        out["tabletop"] = shortest[1:]
     return out
 
 
 def _params() -> list:
-    found = _first_records()
+    found = _replayed_records()
     params = []
     for env in ("tabletop", "robodesk"):
         slow = env in found and found[env][1]["num_samples"] > FAST_SAMPLES
@@ -77,7 +93,7 @@ def _params() -> list:
 
 @pytest.mark.parametrize("env", _params())
 def test_the_committed_oracle_records_replay(env):
-    found = _first_records()
+    found = _replayed_records()
     assert env in found, (
         f"results/oracle holds no {env} oracle record: the shipped tables' evidence is missing"
     )

@@ -313,6 +313,7 @@ def test_vp2_collect_on_a_two_node_cluster_matches_the_local_executor(cluster, t
                 np.testing.assert_array_equal(getattr(ta, field), getattr(tb, field))
 
 
+@pytest.mark.slow  # ~1 min; the fast set keeps the Ray executor's rerun of a dead worker's item
 def test_killing_a_nodes_workers_mid_run_runs_every_trial_exactly_once(cluster, tmp_path):
     seeds, steps = (0, 1, 2, 3, 4, 5), 6
     out = tmp_path / "ray"

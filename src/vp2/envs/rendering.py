@@ -13,10 +13,10 @@ The :class:`Renderer` owns one MuJoCo GL context per (model, size) and is reused
 frame; creating a context per frame (as the ``robodesk`` package does) costs more than the
 rendering itself. Where nothing outside the camera's view can reach the image (no
 shadow-casting light, no reflective material: the tabletop's spec), it leaves out of the scene
-every geom whose bounding sphere lies outside the view frustum (:class:`FrustumCulling`): a
-software rasteriser transforms and clips every vertex it is given, and most of the Panda is
-above the tabletop camera's view. Those geoms draw no pixel, so the image is the same bit for
-bit (``tests/envs/test_frustum_culling.py``). ``VP2_RENDER_CULL=0`` in the environment turns
+every geom whose bounding sphere lies outside the view frustum
+(:class:`vp2.envs.culling.FrustumCulling`): a software rasteriser transforms and clips every
+vertex it is given, and most of the Panda is above the tabletop camera's view. Those geoms
+draw no pixel, so the image is the same bit for bit (``tests/envs/test_frustum_culling.py``). ``VP2_RENDER_CULL=0`` in the environment turns
 it off in every process (for side-by-side timing: ``benchmarks/speed/bench_oracle.py
 --cull both``).
 """
@@ -39,6 +39,8 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 import mujoco  # noqa: E402
 from PIL import Image  # noqa: E402
+
+from vp2.envs.culling import CULL_ENV_VAR, FrustumCulling  # noqa: E402
 
 
 @dataclasses.dataclass(frozen=True)
@@ -242,76 +244,6 @@ def _register_exit_hook_after_gl() -> None:
 _DYNAMIC_VISUAL_FIELDS = ("geom_matid", "geom_rgba", "mat_texid", "mat_rgba")
 
 
-#: Environment variable that turns frustum culling off (``0``) in every renderer made after.
-CULL_ENV_VAR = "VP2_RENDER_CULL"
-
-#: The geom group culled geoms are moved to for one frame: one that MuJoCo's default
-#: visualisation options (``mjvOption.geomgroup``: groups 0-2 drawn) leave out.
-_CULLED_GROUP = 5
-
-
-class FrustumCulling:
-    """Leaves geoms outside a named camera's view frustum out of the next frame.
-
-    A geom is culled when its bounding sphere (``geom_rbound``, grown by ``margin`` for the
-    float32 arithmetic of the GL pipeline) lies wholly behind the camera or beyond one of the
-    frustum's four side planes. It then yields no fragment, so leaving it out changes no pixel,
-    provided no pass other than the camera's draws it: culling is skipped for a frame whose
-    model has an active shadow-casting light or a reflective material (:meth:`applies`).
-    Planes (bounding radius 0) are never culled.
-
-    Args:
-        model: the GL context's model (its ``geom_group`` is switched per frame).
-        camera: the camera's name.
-        aspect: the render's width / height.
-        margin: relative growth of every bounding radius.
-    """
-
-    def __init__(self, model: mujoco.MjModel, camera: str, aspect: float, margin: float = 0.01):
-        self.camera = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
-        if self.camera < 0:
-            raise ValueError(f"camera {camera!r} is not in the model")
-        option = mujoco.MjvOption()
-        if option.geomgroup[_CULLED_GROUP]:
-            raise RuntimeError(f"MuJoCo's default options draw geom group {_CULLED_GROUP}")
-        tan_y = np.tan(np.deg2rad(model.cam_fovy[self.camera]) / 2)
-        self._tan = np.array([tan_y * aspect, tan_y])
-        # Distance from the centre to a side plane, per unit of radius: sqrt(1 + tan^2).
-        self._radius = model.geom_rbound * (1 + margin)
-        self._slack = self._radius[:, None] * np.sqrt(1 + self._tan**2)[None, :]
-        self._cullable = model.geom_rbound > 0
-        self._groups = model.geom_group.copy()
-        self.culled = 0
-
-    @staticmethod
-    def applies(model: mujoco.MjModel) -> bool:
-        """Whether only the camera's own pass draws geoms (no shadows, no reflections)."""
-        shadows = (model.light_castshadow.astype(bool) & model.light_active.astype(bool)).any()
-        return not shadows and not (model.mat_reflectance > 0).any()
-
-    def outside(self, data: mujoco.MjData) -> np.ndarray:
-        """Mask of the geoms wholly outside the frustum (``data``'s kinematics current)."""
-        rel = data.geom_xpos - data.cam_xpos[self.camera]
-        local = rel @ data.cam_xmat[self.camera].reshape(3, 3)  # camera frame: looks along -z
-        depth = -local[:, 2]
-        beyond = np.abs(local[:, :2]) - depth[:, None] * self._tan[None, :] > self._slack
-        return self._cullable & ((depth < -self._radius) | beyond.any(axis=1))
-
-    def apply(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        """Moves the geoms outside the frustum to a hidden group, the rest back to their own."""
-        if self.applies(model):
-            out = self.outside(data)
-            model.geom_group[:] = np.where(out, _CULLED_GROUP, self._groups)
-            self.culled = int(out.sum())
-        else:
-            self.restore(model)
-
-    def restore(self, model: mujoco.MjModel) -> None:
-        """Every geom back in its own group (the next frame draws them all)."""
-        model.geom_group[:] = self._groups
-        self.culled = 0
-
-
 class Renderer:
     """Renders one model's benchmark camera with a :class:`RenderSpec`.
 
@@ -334,8 +266,8 @@ class Renderer:
         spec: the render specification.
         render_model: optional render-only model with the same bodies, joints and geoms.
         cull: leave geoms outside a named camera's view out of the scene where that changes no
-            pixel (:class:`FrustumCulling`); ``False`` draws every geom (for comparison);
-            ``None``: on unless the environment variable ``VP2_RENDER_CULL`` is ``0``.
+            pixel (:class:`vp2.envs.culling.FrustumCulling`); ``False`` draws every geom (for
+            comparison); ``None``: on unless the environment variable ``VP2_RENDER_CULL`` is ``0``.
     """
 
     def __init__(
