@@ -29,7 +29,9 @@ def scene():
     env.close()
 
 
-def _frames(env, states, cull: bool, size: int) -> tuple[np.ndarray, list[int]]:
+def _frames(env, states, cull: bool, size: int,
+            width: int | None = None) -> tuple[np.ndarray, list[int]]:
+    width = size if width is None else width
     env._renderer.cull = cull
     frames, culled = [], []
     try:
@@ -37,22 +39,22 @@ def _frames(env, states, cull: bool, size: int) -> tuple[np.ndarray, list[int]]:
             env.reset_to(state)
             mujoco.mj_kinematics(env._model, env._data)
             mujoco.mj_camlight(env._model, env._data)
-            frames.append(env.render(size))
-            culled.append(env._renderer._culling[(size, size)].culled)
+            frames.append(env.render(size, width))
+            culled.append(env._renderer._culling[(size, width)].culled)
     finally:
         env._renderer.cull = True
     return np.stack(frames), culled
 
 
-@pytest.mark.parametrize("size", [64, 96])
-def test_culling_changes_no_pixel_and_leaves_most_of_the_arm_out(scene, size):
+@pytest.mark.parametrize(("size", "width"), [(64, 64), (96, 96), (48, 112), (112, 48)])
+def test_culling_changes_no_pixel_and_leaves_most_of_the_arm_out(scene, size, width):
     env, states = scene
-    drawn_all, none_culled = _frames(env, states, cull=False, size=size)
-    culled_frames, culled = _frames(env, states, cull=True, size=size)
+    drawn_all, none_culled = _frames(env, states, cull=False, size=size, width=width)
+    culled_frames, culled = _frames(env, states, cull=True, size=size, width=width)
     assert none_culled == [0] * len(states)
     assert np.array_equal(drawn_all, culled_frames)
     # The Panda's links above the view (about 40 visual geoms) and its collision geoms.
-    assert min(culled) >= 30
+    assert min(culled) >= 20
 
 
 def test_a_geom_is_culled_exactly_when_its_sphere_leaves_the_view(scene):
@@ -73,6 +75,14 @@ def test_a_geom_is_culled_exactly_when_its_sphere_leaves_the_view(scene):
         lateral = depth * tan + (radius + offset) * np.sqrt(1 + tan**2)
         data.geom_xpos[sphere] = data.cam_xpos[cam] + depth * forward + lateral * right
         assert culling.outside(data)[sphere] == expected, offset
+    # A wide image (aspect 2): twice the tangent sideways, the same one up and down.
+    wide = FrustumCulling(model, "agentview_shift_2", aspect=2.0, margin=0.0)
+    up = data.cam_xmat[cam].reshape(3, 3)[:, 1]
+    for direction, t in ((right, 2 * tan), (up, tan)):
+        for offset, expected in ((-1e-3, False), (1e-3, True)):
+            lateral = depth * t + (radius + offset) * np.sqrt(1 + t**2)
+            data.geom_xpos[sphere] = data.cam_xpos[cam] + depth * forward + lateral * direction
+            assert wide.outside(data)[sphere] == expected, (t, offset)
     data.geom_xpos[sphere] = data.cam_xpos[cam] - (radius + 1e-3) * forward  # behind the camera
     assert culling.outside(data)[sphere]
     floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
