@@ -111,7 +111,11 @@ def test_culling_stands_aside_for_shadows_and_reflections(scene):
     assert min(culled) >= 30
 
 
-def test_an_unknown_camera_is_named():
-    model = mujoco.MjModel.from_xml_string("<mujoco><worldbody/></mujoco>")
+def test_an_unknown_camera_or_one_with_intrinsics_is_refused():
+    model = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><camera name="lens" sensorsize="0.01 0.01" focal="0.01 0.01"'
+        ' resolution="64 64"/></worldbody></mujoco>')
     with pytest.raises(ValueError, match="camera 'nope' is not in the model"):
         FrustumCulling(model, "nope", aspect=1.0)
+    with pytest.raises(ValueError, match="camera 'lens' has a sensor size"):
+        FrustumCulling(model, "lens", aspect=1.0)

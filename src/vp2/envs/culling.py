@@ -47,6 +47,9 @@ class FrustumCulling:
         self.camera = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
         if self.camera < 0:
             raise ValueError(f"camera {camera!r} is not in the model")
+        if (model.cam_sensorsize[self.camera] > 0).any():
+            # MuJoCo then derives the frustum from the camera's intrinsics, not its fovy.
+            raise ValueError(f"camera {camera!r} has a sensor size: frustum culling needs fovy")
         option = mujoco.MjvOption()
         if option.geomgroup[_CULLED_GROUP]:
             raise RuntimeError(f"MuJoCo's default options draw geom group {_CULLED_GROUP}")

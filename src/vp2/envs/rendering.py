@@ -314,7 +314,9 @@ class Renderer:
             ctx.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.spec.reflection)
             ctx.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = int(self.spec.skybox)
             self._contexts[key] = ctx
-            if isinstance(self._camera, str):
+            cam = -1 if not isinstance(self._camera, str) else mujoco.mj_name2id(
+                ctx.model, mujoco.mjtObj.mjOBJ_CAMERA, self._camera)
+            if cam >= 0 and not ctx.model.cam_sensorsize[cam].any():  # a fovy camera
                 self._culling[key] = FrustumCulling(ctx.model, self._camera, width / height)
         return ctx
 
