@@ -76,16 +76,15 @@ def main() -> None:
             b, _, _ = render_all(env, states, cull=True, size=size)
             same.append(bool(np.array_equal(a, b)))
         times: dict[bool, list[float]] = {False: [], True: []}
-        culled: list[int] = []
+        counts: dict[bool, list[int]] = {}
         for _ in range(args.rounds):
             for cull in (False, True):
-                _, c, seconds = render_all(env, states, cull)
+                _, counts[cull], seconds = render_all(env, states, cull)
                 times[cull].append(seconds)
-                culled = c if cull else culled
         off, on = (statistics.median(times[c]) * 1e3 for c in (False, True))
         print(f"| {task} | {', '.join(f'{1e3 * t:.2f}' for t in times[False])} | "
               f"{', '.join(f'{1e3 * t:.2f}' for t in times[True])} | {on / off:.2f} | "
-              f"{np.mean(culled):.1f} | {same[0]}, {same[1]} |")
+              f"{np.mean(counts[True]):.1f} | {same[0]}, {same[1]} |")
         env.close()
 
 

@@ -18,8 +18,8 @@ The floor (tabletop): the same physics steps (N x 10 control steps x 500) as pla
 calls on one core, in MuJoCo's own compiled loop (``mujoco.rollout``): the controls that the
 stepping computed for a few random candidates from the planning state, replayed open-loop.
 "x floor" is the planning step over that time, the floor timed again before every repeat and
-the ratio taken within each repeat (median over repeats); the targets are <= 1.3x on one core and <= 0.75x
-with both.
+the ratio taken within each repeat (median over repeats); the targets are <= 1.3x on one core
+and <= 0.75x with both.
 
 ``--cull both`` times every worker count with the renderer's frustum culling off and on
 (``VP2_RENDER_CULL``), alternating, in one run; ``--one-core`` pins this process and its
@@ -123,11 +123,11 @@ class PhysicsFloor:
                   for i, (_, final) in enumerate(recorded))  # fmt: skip
         print(f"floor: {batch} replayed candidates end {gap:.1e} from the controlled ones")
 
-    def time(self) -> tuple[float, float]:
-        """Wall and CPU seconds of the scaled replay."""
-        t0, c0 = time.perf_counter(), time.process_time()
+    def time(self) -> float:
+        """Seconds of the scaled replay."""
+        t0 = time.perf_counter()
         self._rollout(self.model, self.data, self.initial, self.controls)
-        return ((time.perf_counter() - t0) * self.scale, (time.process_time() - c0) * self.scale)
+        return (time.perf_counter() - t0) * self.scale
 
 
 def set_culling(cull: str) -> None:
@@ -168,8 +168,6 @@ def main() -> None:
                   for cull in culls for w in args.workers}  # fmt: skip
         times: dict[tuple[int, str], list[float]] = {key: [] for key in models}
         floors: list[float] = []
-        cpu_floors: list[float] = []
-        cpu: dict[tuple[int, str], list[float]] = {key: [] for key in models}
         startup: dict[tuple[int, str], float] = {}
         try:
             for key, model in models.items():
@@ -181,17 +179,14 @@ def main() -> None:
                 startup[key] = time.perf_counter() - t0
             for r in range(args.repeats):
                 if floor is not None:
-                    wall, cpu_s = floor.time()
-                    floors.append(wall)
-                    cpu_floors.append(cpu_s)
+                    floors.append(floor.time())
                 for key, model in models.items():
                     agent = PlanningAgent(model, PlannerConfig(num_samples=args.num_samples))
                     agent.reset(task, goal, seed=r)
                     set_culling(key[1])
-                    t0, c0 = time.perf_counter(), time.process_time()
+                    t0 = time.perf_counter()
                     agent.act(obs)
                     times[key].append(time.perf_counter() - t0)
-                    cpu[key].append(time.process_time() - c0)
         finally:
             for model in models.values():
                 model.close()
@@ -202,12 +197,8 @@ def main() -> None:
             # Each repeat's step over that repeat's floor: the ratio within a repeat.
             ratio = (statistics.median(a / b for a, b in zip(times[key], floors, strict=True))
                      if floors else None)  # fmt: skip
-            # One worker simulates in this process: its CPU time is the whole step's (steal
-            # time of a shared VM left out); a pool's workers are other processes.
-            cpu_ratio = (statistics.median(a / b for a, b in zip(cpu[key], cpu_floors, strict=True))
-                         if floors and key[0] == 1 else None)  # fmt: skip
             rows.append((task, key, t, startup[key], base / t, step_s, render_s, times[key],
-                         floors, ratio, cpu_ratio))
+                         floors, ratio))
 
     print(
         f"machine: {platform.machine()} {os.cpu_count()} cores (load {os.getloadavg()[0]:.1f} at "
@@ -221,11 +212,11 @@ def main() -> None:
     if extrapolate:
         head += f" {SPEC_SAMPLES}-sample step s (extrapolated) |"
         rule += "---|"
-    head += " env step ms | render ms | floor s | x floor | x floor, CPU time | runs s |"
-    rule += "---|---|---|---|---|---|"
+    head += " env step ms | render ms | floor s | x floor | runs s |"
+    rule += "---|---|---|---|---|"
     print(head)
     print(rule)
-    for task, (w, cull), t, start, speedup, step_s, render_s, runs, floors, ratio, cpu_ratio in rows:
+    for task, (w, cull), t, start, speedup, step_s, render_s, runs, floors, ratio in rows:
         line = (
             f"| {task} | {w} | {'on' if cull == '1' else 'off'} | {t:.1f} | "
             f"{1000 * t / args.num_samples:.0f} | {speedup:.2f}x | {start:.1f} |"
@@ -235,7 +226,6 @@ def main() -> None:
         line += f" {1000 * step_s:.0f} | {1000 * render_s:.1f} |"
         line += (" - | - |" if ratio is None else
                  f" {', '.join(f'{x:.1f}' for x in floors)} | {ratio:.2f}x |")  # fmt: skip
-        line += " - |" if cpu_ratio is None else f" {cpu_ratio:.2f}x |"
         line += f" {', '.join(f'{x:.1f}' for x in runs)} |"
         print(line)
 

@@ -119,3 +119,7 @@ def test_an_unknown_camera_or_one_with_intrinsics_is_refused():
         FrustumCulling(model, "nope", aspect=1.0)
     with pytest.raises(ValueError, match="camera 'lens' has a sensor size"):
         FrustumCulling(model, "lens", aspect=1.0)
+    # What the renderer asks: no culling for these cameras, nor for a free camera.
+    assert FrustumCulling.for_camera(model, "lens", 1.0) is None
+    assert FrustumCulling.for_camera(model, "nope", 1.0) is None
+    assert FrustumCulling.for_camera(model, mujoco.MjvCamera(), 1.0) is None

@@ -10,6 +10,7 @@ draw no pixel, so the image is the same bit for bit (``tests/envs/test_frustum_c
 from __future__ import annotations
 
 import os
+from typing import Any
 
 # As in vp2.envs.rendering: MuJoCo picks its GL backend at import time.
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -61,6 +62,18 @@ class FrustumCulling:
         self._cullable = model.geom_rbound > 0
         self._groups = model.geom_group.copy()
         self.culled = 0
+
+    @classmethod
+    def for_camera(cls, model: mujoco.MjModel, camera: Any,
+                   aspect: float) -> FrustumCulling | None:
+        """Culling for ``camera`` if it is a named camera of ``model`` with a field of view
+        (``fovy``, no intrinsics); ``None`` for any other camera (e.g. a free camera)."""
+        if not isinstance(camera, str):
+            return None
+        cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+        if cam < 0 or model.cam_sensorsize[cam].any():
+            return None
+        return cls(model, camera, aspect)
 
     @staticmethod
     def applies(model: mujoco.MjModel) -> bool:

@@ -16,9 +16,9 @@ shadow-casting light, no reflective material: the tabletop's spec), it leaves ou
 every geom whose bounding sphere lies outside the view frustum
 (:class:`vp2.envs.culling.FrustumCulling`): a software rasteriser transforms and clips every
 vertex it is given, and most of the Panda is above the tabletop camera's view. Those geoms
-draw no pixel, so the image is the same bit for bit (``tests/envs/test_frustum_culling.py``). ``VP2_RENDER_CULL=0`` in the environment turns
-it off in every process (for side-by-side timing: ``benchmarks/speed/bench_oracle.py
---cull both``).
+draw no pixel, so the image is the same bit for bit (``tests/envs/test_frustum_culling.py``).
+``VP2_RENDER_CULL=0`` in the environment turns it off in every process (for side-by-side
+timing: ``benchmarks/speed/bench_oracle.py --cull both``).
 """
 
 from __future__ import annotations
@@ -314,10 +314,9 @@ class Renderer:
             ctx.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.spec.reflection)
             ctx.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = int(self.spec.skybox)
             self._contexts[key] = ctx
-            cam = -1 if not isinstance(self._camera, str) else mujoco.mj_name2id(
-                ctx.model, mujoco.mjtObj.mjOBJ_CAMERA, self._camera)
-            if cam >= 0 and not ctx.model.cam_sensorsize[cam].any():  # a fovy camera
-                self._culling[key] = FrustumCulling(ctx.model, self._camera, width / height)
+            culling = FrustumCulling.for_camera(ctx.model, self._camera, width / height)
+            if culling is not None:
+                self._culling[key] = culling
         return ctx
 
     def render(self, data: mujoco.MjData, height: int = 64, width: int | None = None) -> np.ndarray:
