@@ -28,7 +28,7 @@ main: $(STAMP)
 	$(VENV)/bin/vp2 main
 
 test: $(STAMP)
-	$(VENV)/bin/python -m pytest -q
+	$(VENV)/bin/python -m pytest -q -n auto --maxprocesses 4 --dist loadgroup
 
 test-slow: $(STAMP)
 	$(VENV)/bin/python -m pytest -q -m slow
