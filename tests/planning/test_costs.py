@@ -82,6 +82,41 @@ def test_classifier_term_runs_the_classifier_on_every_frame(max_batch_size) -> N
     torch.testing.assert_close(cost, -torch.tensor([0.0 + 0.1 + 0.2, 0.3 + 0.4 + 0.5]))
 
 
+class _Counting:
+    """The mean-intensity classifier, counting the images it is shown."""
+
+    def __init__(self) -> None:
+        self.images = 0
+
+    def __call__(self, images: torch.Tensor) -> torch.Tensor:
+        self.images += images.shape[0]
+        return _mean_intensity_classifier(images)
+
+
+def test_one_image_in_every_frame_is_classified_once() -> None:
+    # The repeat-last-frame baseline's predictions: one image for every sample and step.
+    frames = torch.rand(1, 1, C, S, S).expand(5, T, C, S, S).contiguous()
+    counting = _Counting()
+    cost = ClassifierCost(counting, max_batch_size=4)(frames)
+    assert counting.images == 1
+    logit = _mean_intensity_classifier(frames[0, :1]).reshape(())
+    assert torch.equal(cost, classifier_cost(logit.repeat(5, T))) and cost.is_contiguous()
+    # One value off in one frame, or a gradient to carry: every frame goes through, as before.
+    for changed in (frames.clone(), frames.clone().requires_grad_(True)):
+        if not changed.requires_grad:
+            changed[4, T - 1, 2, S - 1, S - 1] += 1e-6
+        counting = _Counting()
+        ClassifierCost(counting)(changed)
+        assert counting.images == 5 * T
+    # A goal per predicted frame makes the perceptual term's pairs differ: all go through.
+    seen = []
+    distance = lambda x, y: seen.append(x.shape[0]) or (x - y).abs().flatten(1).sum(1)  # noqa: E731
+    same = PerceptualCost(distance, torch.zeros(C, S, S))(frames)
+    per_step = PerceptualCost(distance, torch.rand(T, C, S, S))(frames)
+    assert seen == [1, 5 * T] and per_step.shape == (5,)
+    torch.testing.assert_close(same, frames[:, 0].flatten(1).sum(1) * T)
+
+
 def test_robodesk_score_is_half_pixel_sse_and_ten_times_the_logits() -> None:
     goal = torch.zeros(C, S, S)
     frames = _frames(0.5, 1.0)

@@ -113,12 +113,39 @@ def classifier_cost(logits: Tensor) -> Tensor:
     return -fixed_sum(logits, dim=1)
 
 
+def _all_the_same(x: Tensor) -> bool:
+    """Whether every ``(C, H, W)`` image of ``x (N, T, C, H, W)`` equals the first, bit for bit
+    (one pixel column first, which rules out almost every batch of different images cheaply)."""
+    first = x[:1, :1]
+    return bool(
+        torch.equal(x[..., 0], first[..., 0].expand_as(x[..., 0]))
+        and torch.equal(x, first.expand_as(x))
+    )
+
+
 def _per_frame(
     fn: Callable[..., Tensor], frames: Tensor, *extra: Tensor, max_batch_size: int | None
 ) -> Tensor:
-    """Applies an image function to all ``N·T`` frames in chunks; returns ``(N, T)``."""
+    """Applies an image function to all ``N·T`` frames in chunks; returns ``(N, T)``.
+
+    When all ``N·T`` inputs are one image (the repeat-last-frame baseline predicts the context's
+    last frame for every sample and step) and nothing needs a gradient, ``fn`` sees that image
+    once and its value stands for every frame: every sample then has the same cost whatever
+    ``fn``'s batch-size-dependent rounding, where thousands of copies (8,000 on the slide) cost
+    seconds of a classifier per planning step.
+    """
     n, t = frames.shape[:2]
-    flat = [x.reshape(n * t, *x.shape[2:]) for x in (frames, *extra)]  # (N*T, C, H, W) each
+    inputs = (frames, *extra)
+    if (n * t > 1 and not any(x.requires_grad for x in inputs)
+            and all(_all_the_same(x) for x in inputs)):
+        value = fn(*(x[0, :1] for x in inputs)).reshape(-1)
+        if value.shape[0] != 1:
+            raise ValueError(
+                f"a per-image function returned {value.shape[0]} values for 1 image; it "
+                "must return one value per image"
+            )
+        return value.repeat(n * t).view(n, t)
+    flat = [x.reshape(n * t, *x.shape[2:]) for x in inputs]  # (N*T, C, H, W) each
     chunk = max_batch_size or n * t
     out = [fn(*(x[i : i + chunk] for x in flat)) for i in range(0, n * t, chunk)]
     values = torch.cat([o.reshape(-1) for o in out])  # (N*T,)
