@@ -1,0 +1,56 @@
+"""The paper's planner comparison: its columns, and the study end to end on a tiny suite."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+
+from benchmarks.paper import planners
+from tests.benchmark import tiny_suite_path
+
+TINY = "zoo:svg_prime-tiny-tabletop"  # differentiable, 1.6 M parameters
+
+
+def test_the_columns_are_the_papers_planners_and_the_oracles_sampling_ones():
+    names = [(s.name, s.model, s.optimizer, s.lr) for s in planners.settings("m", [1e-3, 7e-2], True)]
+    assert names == [
+        ("mppi", "m", "mppi", None), ("cem", "m", "cem", None), ("cem_gd", "m", "cem_gd", None),
+        ("lbfgs-lr0.001", "m", "lbfgs", 1e-3), ("lbfgs-lr0.07", "m", "lbfgs", 7e-2),
+        ("oracle-mppi", "simulator", "mppi", None), ("oracle-cem", "simulator", "cem", None),
+    ]
+    assert planners.LBFGS_LRS == (1e-3, 1e-2, 5e-2, 7e-2)
+    assert [s.name for s in planners.settings("m", [1e-2], False)][-1] == "lbfgs-lr0.01"
+
+
+def test_the_study_runs_each_setting_resumably_and_tabulates_them(tmp_path, capsys):
+    out = tmp_path / "study"
+    argv = ["--model", TINY, "--out", str(out), "--suite", str(tiny_suite_path()),
+            "--tasks", "tabletop/push_sphere", "--num-instances", "1", "--seeds", "0",
+            "--num-samples", "8", "--num-steps", "2", "--lbfgs-lrs", "0.05", "--no-oracle",
+            "--grad-steps", "1", "--no-gifs", "--no-progress", "--only", "mppi", "lbfgs-lr0.05"]
+    planners.main(argv)
+    assert {p.name for p in (out / "runs").iterdir()} == {"mppi", "lbfgs-lr0.05"}
+    config = yaml.safe_load((out / "runs" / "lbfgs-lr0.05" / "config.yaml").read_text())["config"]
+    assert config["planner"]["optimizer"] == "lbfgs" and config["planner"]["lr"] == 0.05
+    assert config["planner"]["grad_steps"] == 1
+    (line,) = (out / "runs" / "lbfgs-lr0.05" / "trials.jsonl").read_text().splitlines()
+    record = json.loads(line)
+    assert record["error"] is None and record["num_steps"] == 2
+    assert record["agent"]["planner"]["optimizer"] == "lbfgs"
+    data = json.loads((out / "planners.json").read_text())
+    assert [s["name"] for s in data["settings"]] == ["mppi", "cem", "cem_gd", "lbfgs-lr0.05"]
+    assert [s["summary"] is None for s in data["settings"]] == [False, True, True, False]
+    page = (out / "planners.md").read_text()
+    row = next(line for line in page.splitlines() if line.startswith("| tabletop/push_sphere"))
+    cells = [c.strip() for c in row.split("|")[2:-1]]
+    assert [c.endswith("(1)") for c in cells] == [True, False, False, True]
+    assert cells[1:3] == ["pending", "pending"]
+    # Run again: every trial is on disk, nothing runs, the table is the same.
+    capsys.readouterr()
+    planners.main(argv)
+    assert (out / "planners.md").read_text() == page
+    assert "[mppi]" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="no setting oracle-mppi"):
+        planners.main(argv + ["oracle-mppi"])
