@@ -6,8 +6,8 @@ import json
 
 import pytest
 import yaml
-
 from benchmarks.paper import planners
+
 from tests.benchmark import tiny_suite_path
 
 TINY = "zoo:svg_prime-tiny-tabletop"  # differentiable, 1.6 M parameters
