@@ -51,7 +51,7 @@ def write_oracle_run(
         "model": model, "agent": "planning", "suite": str(suite), "optimizer": "mppi",
         "num_samples": None, "gamma": 0.05, "num_iterations": None, "cost": "auto",
         "num_steps": 15, "seeds": sorted({s for _, s in outcomes}), "oracle": None,
-        "tasks": [TASK], "num_instances": 2,
+        "tasks": [TASK], "num_instances": max(i for i, _ in outcomes) + 1,
         **config_overrides,
     }
     (run_dir / "config.yaml").write_text(

@@ -174,6 +174,34 @@ def test_build_refuses(tmp_path, case, message):
         build_table(runs)
 
 
+def test_a_run_ships_only_finished_task_categories(tmp_path, capsys):
+    # A long run over two categories that has finished one of them (push_red has no trials).
+    suite = tiny_suite_path(include_robodesk=True)
+    run = write_oracle_run(tmp_path / "r", suite=suite, tasks=[TASK, "robodesk/push_red"])
+    with pytest.raises(ValueError, match=r"3 of its 9 planned trials have not finished \(e\.g\. "
+                       r"robodesk/push_red#0 seed 0\).*--tasks"):
+        build_table([run])
+    meta, trials = build_table([run], tasks=["tabletop"])  # an environment: its categories
+    assert {t["task"] for t in trials} == {TASK} and len(trials) == len(OUTCOMES)
+    assert build_table([run], tasks=[TASK]) == (meta, trials)
+    with pytest.raises(ValueError, match="push_red#0 seed 0"):
+        build_table([run], tasks=["robodesk/push_red"])
+    with pytest.raises(ValueError, match="planned no trials of tabletop/push_large_cube"):
+        build_table([run], tasks=["tabletop/push_large_cube"])
+    # One finished instance short of what the run planned is refused as well.
+    short = write_oracle_run(tmp_path / "s", {k: v for k, v in OUTCOMES.items() if k != (1, 2)})
+    with pytest.raises(ValueError, match=r"1 of its 6 planned trials .*push_sphere#1 seed 2"):
+        build_table([short])
+    results = tmp_path / "results"
+    args = ["ship-oracle", str(run), "--results", str(results), "--out", str(tmp_path / "a.json")]
+    assert cli.main(args + ["--tasks", TASK]) == 0
+    assert read_table(results / "spec")[1] == trials
+    capsys.readouterr()
+    assert cli.main(args) == 2 and "have not finished" in capsys.readouterr().err
+    assert cli.main(["ship-oracle", "--results", str(results), "--tasks", TASK]) == 2
+    assert "--tasks describe a table made from RUN_DIRs" in capsys.readouterr().err
+
+
 # --------------------------------------------------------------------------- results -> asset
 
 

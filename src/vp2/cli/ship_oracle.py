@@ -83,6 +83,15 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         help="with RUN_DIRs: replace only the runs' tasks in the existing table NAME, keeping "
         "its other tasks' records (which must still match the task suite)",
     )
+    p.add_argument(
+        "--tasks",
+        nargs="+",
+        default=None,
+        metavar="TASK",
+        help="with RUN_DIRs: only these task categories (or environments) of the runs, each "
+        "finished, e.g. the categories a long run has done (default: all the runs planned; "
+        "every planned trial of a shipped task must have finished)",
+    )
     p.add_argument("--note", default="", metavar="TEXT", help="free text stored with the table")
     p.add_argument(
         "--date",
@@ -108,7 +117,8 @@ def run_from_args(args: argparse.Namespace) -> int:
     if args.update and not args.run_dirs:
         raise ValueError("--update replaces tasks of a table with RUN_DIRs: give the runs")
     if args.run_dirs:
-        meta, trials = build_table(args.run_dirs, name=args.table, note=args.note, date=args.date)
+        meta, trials = build_table(args.run_dirs, name=args.table, note=args.note, date=args.date,
+                                   tasks=args.tasks)
         if args.update:
             folder = Path(results) / str(meta["name"])
             if not (folder / META_FILE).is_file():
@@ -120,8 +130,8 @@ def run_from_args(args: argparse.Namespace) -> int:
             meta, trials = merge_tables(old_meta, old_trials, meta, trials)
         folder = write_table(meta, trials, results)
         print(f"wrote {folder} ({len(trials)} trials)")
-    elif args.table or args.note or args.date:
-        raise ValueError("--table, --note and --date describe a table made from RUN_DIRs")
+    elif args.table or args.note or args.date or args.tasks:
+        raise ValueError("--table, --note, --date and --tasks describe a table made from RUN_DIRs")
     asset = build_asset(results)
     out = args.out if args.out is not None else default_asset_path()
     if args.check:

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from vp2 import spec
+from vp2.envs.tasks import ENV_TASKS
 from vp2.oracle.shipped import (
     ASSET_FORMAT,
     SETTINGS,
@@ -33,7 +34,7 @@ from vp2.oracle.shipped import (
     is_oracle_config,
 )
 from vp2.run.config import planner_of
-from vp2.run.results import is_ok, task_success, trial_key
+from vp2.run.results import is_ok, task_success, trial_key, trial_keys
 from vp2.run.run_dir import CONFIG_FILE, TRIALS_FILE, RunDir, read_trials
 from vp2.utils.io import atomic_path, write_json_atomic
 
@@ -207,6 +208,38 @@ def _check_run(run: RunDir, settings: dict[str, Any] | None) -> tuple[dict[str, 
     return config, records
 
 
+def _finished_records(
+    path: Path, config: dict[str, Any], suite: Any, records: list[dict[str, Any]],
+    tasks: Sequence[str] | None,
+) -> list[dict[str, Any]]:
+    """The run's records of ``tasks`` (all when ``None``), refused unless every trial the run
+    planned for them (its tasks x instances x seeds) has finished."""
+    planned = trial_keys(
+        suite.select(config.get("tasks") or (), config.get("num_instances")),
+        config.get("seeds") or (0,),
+    )
+    if tasks:
+        ran = {key[0] for key in planned}
+        # an environment: those of its categories the run planned, as `vp2 run --tasks` reads it
+        wanted = {t for t in ran if t.split("/")[0] in tasks} | set(tasks) - set(ENV_TASKS)
+        absent = sorted((wanted - ran) | {n for n in tasks if n in ENV_TASKS and not any(
+            t.split("/")[0] == n for t in ran)})
+        if absent:
+            raise ValueError(f"{path}: the run planned no trials of {', '.join(absent)}")
+        planned = [key for key in planned if key[0] in wanted]
+        records = [r for r in records if r["task"] in wanted]
+    have = {trial_key(r) for r in records}
+    missing = [key for key in planned if key not in have]
+    if missing:
+        task, index, seed = missing[0]
+        raise ValueError(
+            f"{path}: {len(missing)} of its {len(planned)} planned trials have not finished "
+            f"(e.g. {task}#{index} seed {seed}); finish the run with `vp2 run ... --resume`, or "
+            "ship the task categories it has finished with --tasks"
+        )
+    return records
+
+
 def build_table(
     run_dirs: Sequence[PathLike],
     *,
@@ -214,6 +247,7 @@ def build_table(
     note: str = "",
     date: str | datetime.date | None = None,
     commands: Sequence[str] | None = None,
+    tasks: Sequence[str] | None = None,
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """A table's ``meta.json`` and compact trial records from simulator-oracle run directories.
 
@@ -225,13 +259,15 @@ def build_table(
         date: When the oracle was measured (default: the date its last trial finished).
         commands: The commands that ran the trials (default: :func:`run_command` of each
             run's settings).
+        tasks: Only these task categories (or environments) of the runs, e.g. the categories a
+            long run has finished (default: every task the runs planned).
 
     Returns:
         ``(meta, trials)``, plain data (write them with :func:`write_table`).
 
     Raises:
         ValueError: a directory that is not a finished simulator-oracle run (no records,
-            another model, errored trials), runs whose settings or task suites differ, a run
+            another model, errored trials, planned trials of the shipped tasks missing), runs whose settings or task suites differ, a run
             whose records do not match its task suite any more or rendered differently from
             this vp2, trials of one task at different budgets, a bad name, no date.
     """
@@ -254,6 +290,7 @@ def build_table(
             raise ValueError(
                 f"{run.path}: cannot load the task suite it ran on to check its instances ({exc})"
             ) from exc
+        run_records = _finished_records(run.path, config, suite, run_records, tasks)
         by_key = {i.key: i.fingerprint for i in suite}
         for r in run_records:
             key = trial_key(r)
