@@ -21,6 +21,7 @@ NOT_SCRIPTS = {
         "train",
     )),
     "benchmarks.comparison.zoo_training_curve",
+    "benchmarks.paper.study",
 }  # fmt: skip
 
 

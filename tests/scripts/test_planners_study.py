@@ -14,14 +14,17 @@ TINY = "zoo:svg_prime-tiny-tabletop"  # differentiable, 1.6 M parameters
 
 
 def test_the_columns_are_the_papers_planners_and_the_oracles_sampling_ones():
-    names = [(s.name, s.model, s.optimizer, s.lr) for s in planners.settings("m", [1e-3, 7e-2], True)]
+    names = [(c.name, c.model, c.planner.optimizer, c.planner.lr)
+             for c in planners.settings("m", [1e-3, 7e-2], True)]
     assert names == [
         ("mppi", "m", "mppi", None), ("cem", "m", "cem", None), ("cem_gd", "m", "cem_gd", None),
         ("lbfgs-lr0.001", "m", "lbfgs", 1e-3), ("lbfgs-lr0.07", "m", "lbfgs", 7e-2),
         ("oracle-mppi", "simulator", "mppi", None), ("oracle-cem", "simulator", "cem", None),
     ]
     assert planners.LBFGS_LRS == (1e-3, 1e-2, 5e-2, 7e-2)
-    assert [s.name for s in planners.settings("m", [1e-2], False)][-1] == "lbfgs-lr0.01"
+    columns = planners.settings("m", [1e-2], False, grad_steps=3, num_samples_first=9)
+    assert columns[-1].name == "lbfgs-lr0.01" and columns[-1].planner.grad_steps == 3
+    assert columns[2].planner.num_samples_first == 9 and columns[0].planner.grad_steps is None
 
 
 def test_the_study_runs_each_setting_resumably_and_tabulates_them(tmp_path, capsys):
@@ -40,8 +43,10 @@ def test_the_study_runs_each_setting_resumably_and_tabulates_them(tmp_path, caps
     assert record["error"] is None and record["num_steps"] == 2
     assert record["agent"]["planner"]["optimizer"] == "lbfgs"
     data = json.loads((out / "planners.json").read_text())
-    assert [s["name"] for s in data["settings"]] == ["mppi", "cem", "cem_gd", "lbfgs-lr0.05"]
-    assert [s["summary"] is None for s in data["settings"]] == [False, True, True, False]
+    assert [c["name"] for c in data["columns"]] == ["mppi", "cem", "cem_gd", "lbfgs-lr0.05"]
+    assert [c["summary"] is None for c in data["columns"]] == [False, True, True, False]
+    svg = (out / "planners.svg").read_text()
+    assert svg.startswith("<svg") and 'data-series="lbfgs-lr0.05"' in svg
     page = (out / "planners.md").read_text()
     row = next(line for line in page.splitlines() if line.startswith("| tabletop/push_sphere"))
     cells = [c.strip() for c in row.split("|")[2:-1]]
@@ -52,5 +57,5 @@ def test_the_study_runs_each_setting_resumably_and_tabulates_them(tmp_path, caps
     planners.main(argv)
     assert (out / "planners.md").read_text() == page
     assert "[mppi]" in capsys.readouterr().out
-    with pytest.raises(SystemExit, match="no setting oracle-mppi"):
+    with pytest.raises(SystemExit, match="no column oracle-mppi"):
         planners.main(argv + ["oracle-mppi"])

@@ -1,0 +1,65 @@
+"""The ensemble and scaling studies of the paper (benchmarks.paper.ensemble, .scaling): their
+columns, and each end to end on a tiny suite with small zoo models."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from benchmarks.paper import ensemble, scaling
+
+from tests.benchmark import tiny_suite_path
+
+SVG = "zoo:svg_prime-tiny-tabletop"
+FITVID = "zoo:fitvid-tabletop-15min"
+
+
+def _common(out) -> list[str]:
+    return ["--out", str(out), "--suite", str(tiny_suite_path()), "--tasks", "tabletop/push_sphere",
+            "--num-instances", "1", "--seeds", "0", "--num-samples", "8", "--num-steps", "2",
+            "--no-gifs", "--no-progress"]
+
+
+def test_the_ensemble_is_planned_beside_each_of_its_members(tmp_path):
+    cols = ensemble.columns(["a", "b", "c"])
+    assert [(c.name, c.model) for c in cols] == [
+        ("ensemble", "ensemble(a,b,c)"), ("member-1", "a"), ("member-2", "b"), ("member-3", "c")]
+    assert ensemble.TASKS == ("robodesk/upright_block_off_table", "robodesk/push_green",
+                              "robodesk/open_slide")
+    out = tmp_path / "ens"
+    ensemble.main(["--members", SVG, FITVID, *_common(out)])
+    data = json.loads((out / "ensemble.json").read_text())
+    assert [c["name"] for c in data["columns"]] == ["ensemble", "member-1", "member-2"]
+    assert all(c["summary"]["tasks"][0]["num_trials"] == 1 for c in data["columns"])
+    (line,) = (out / "runs" / "ensemble" / "trials.jsonl").read_text().splitlines()
+    record = json.loads(line)
+    assert record["error"] is None and record["agent"]["ensemble"]["members"] == [SVG, FITVID]
+    page = (out / "ensemble.md").read_text()
+    assert f"- `member-2`: `{FITVID}`" in page and "![" in page
+    assert 'data-series="member-1"' in (out / "ensemble.svg").read_text()
+    with pytest.raises(SystemExit):
+        ensemble.main(["--members", SVG, *_common(out)])  # one member is no ensemble
+
+
+def test_scaling_draws_a_curve_per_family_over_x(tmp_path, capsys):
+    with pytest.raises(ValueError, match="X must be a number"):
+        scaling.columns([("svg", "a", SVG, "many")])
+    with pytest.raises(ValueError, match="each FAMILY NAME once"):
+        scaling.columns([("svg", "a", SVG, "1"), ("svg", "a", SVG, "2")])
+    with pytest.raises(ValueError, match="name a folder"):
+        scaling.columns([("svg/x", "a", SVG, "1")])
+    out = tmp_path / "size"
+    scaling.main(["--x", "parameters", "--point", "svg_prime", "small", SVG, "1.65e6",
+                  "--point", "fitvid", "mini", FITVID, "1.52e6", *_common(out)])
+    data = json.loads((out / "scaling.json").read_text())
+    assert [(c["name"], c["x"], c["group"]) for c in data["columns"]] == [
+        ("svg_prime-small", 1.65e6, "svg_prime"), ("fitvid-mini", 1.52e6, "fitvid")]
+    svg = (out / "scaling.svg").read_text()
+    assert svg.count('class="pt"') == 2 and 'data-series="fitvid"' in svg
+    assert 'data-x="1650000.0"' in svg and 'data-x="1520000.0"' in svg
+    assert "- `fitvid-mini`: `zoo:fitvid-tabletop-15min` at 1.52e+06 parameters" in (
+        out / "scaling.md").read_text()
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        scaling.main(["--x", "parameters", "--point", "svg", "a", SVG, "lots", *_common(out)])
+    assert "X must be a number" in capsys.readouterr().err
