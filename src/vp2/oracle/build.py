@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 from vp2 import spec
-from vp2.envs.tasks import ENV_TASKS
 from vp2.oracle.shipped import (
     ASSET_FORMAT,
     SETTINGS,
@@ -219,11 +218,13 @@ def _finished_records(
         config.get("seeds") or (0,),
     )
     if tasks:
+        # a name is a category, or an environment: those of its categories the run planned
+        def named(task: str, name: str) -> bool:
+            return task == name or task.split("/")[0] == name
+
         ran = {key[0] for key in planned}
-        # an environment: those of its categories the run planned, as `vp2 run --tasks` reads it
-        wanted = {t for t in ran if t.split("/")[0] in tasks} | set(tasks) - set(ENV_TASKS)
-        absent = sorted((wanted - ran) | {n for n in tasks if n in ENV_TASKS and not any(
-            t.split("/")[0] == n for t in ran)})
+        wanted = {t for t in ran if any(named(t, n) for n in tasks)}
+        absent = [n for n in tasks if not any(named(t, n) for t in ran)]
         if absent:
             raise ValueError(f"{path}: the run planned no trials of {', '.join(absent)}")
         planned = [key for key in planned if key[0] in wanted]
@@ -267,9 +268,10 @@ def build_table(
 
     Raises:
         ValueError: a directory that is not a finished simulator-oracle run (no records,
-            another model, errored trials, planned trials of the shipped tasks missing), runs whose settings or task suites differ, a run
-            whose records do not match its task suite any more or rendered differently from
-            this vp2, trials of one task at different budgets, a bad name, no date.
+            another model, errored trials, planned trials of the shipped tasks missing), runs
+            whose settings or task suites differ, a run whose records do not match its task
+            suite any more or rendered differently from this vp2, trials of one task at
+            different budgets, a bad name, no date.
     """
     from vp2.data.suite import SUITE_FORMAT, TaskSuite
 
