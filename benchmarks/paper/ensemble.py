@@ -15,7 +15,6 @@ the upright block, equal on the green button and slightly worse on the slide.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 
 from benchmarks.common import argument_parser, command_line
 from benchmarks.paper import study
@@ -48,16 +47,10 @@ def parse_args(argv: Sequence[str] | None = None):
 
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
-    cols = columns(args.members)
-    study.run_columns(args, cols)
-    found = study.summaries(Path(args.out), cols)
-    lines = study.success_table(cols, found)
-    members = "".join(f"\n- `member-{i + 1}`: `{m}`" for i, m in enumerate(args.members))
-    study.write_outputs(Path(args.out), "ensemble",
-                        f"An ensemble of {len(args.members)} against its members",
-                        command_line(__spec__.name, argv), [*lines, "", "Members:" + members],
-                        cols, found, study.success_bars(cols, found))
-    print("\n".join(lines))
+    members = [f"- `member-{i + 1}`: `{m}`" for i, m in enumerate(args.members)]
+    study.run_study(args, columns(args.members), stem="ensemble",
+                    title=f"An ensemble of {len(args.members)} against its members",
+                    command=command_line(__spec__.name, argv), notes=["Members:", *members])
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ sampling-based ones (SPEC: 200).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 
 from benchmarks.common import argument_parser, command_line
 from benchmarks.paper import study
@@ -71,13 +70,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
     columns = settings(args.model, args.lbfgs_lrs, not args.no_oracle, args.grad_steps,
                        args.num_samples_first)
-    study.run_columns(args, columns)
-    found = study.summaries(Path(args.out), columns)
-    lines = study.success_table(columns, found)
-    study.write_outputs(Path(args.out), "planners", f"Planners with `{args.model}`",
-                        command_line(__spec__.name, argv), lines, columns, found,
-                        study.success_bars(columns, found))
-    print("\n".join(lines))
+    study.run_study(args, columns, stem="planners", title=f"Planners with `{args.model}`",
+                    command=command_line(__spec__.name, argv))
 
 
 if __name__ == "__main__":

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from pathlib import Path
 
 from benchmarks.common import argument_parser, command_line
 from benchmarks.paper import study
@@ -65,15 +64,11 @@ def parse_args(argv: Sequence[str] | None = None):
 
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
-    cols = args.columns
-    study.run_columns(args, cols)
-    found = study.summaries(Path(args.out), cols)
-    lines = study.success_table(cols, found)
-    points = [f"- `{c.name}`: `{c.model}` at {c.x:g} {args.x}" for c in cols]
-    study.write_outputs(Path(args.out), "scaling", f"Control against {X_LABELS[args.x]}",
-                        command_line(__spec__.name, argv), [*lines, "", *points], cols, found,
-                        study.success_curve(cols, found, X_LABELS[args.x]))
-    print("\n".join(lines))
+    points = [f"- `{c.name}`: `{c.model}` at {c.x:g} {args.x}" for c in args.columns]
+    study.run_study(args, args.columns, stem="scaling",
+                    title=f"Control against {X_LABELS[args.x]}",
+                    command=command_line(__spec__.name, argv), notes=points,
+                    x_label=X_LABELS[args.x])
 
 
 if __name__ == "__main__":

@@ -154,19 +154,25 @@ def success_curve(columns: Sequence[Column], found: Mapping[str, Any], x_label: 
                       y_label="success (mean over tasks)")
 
 
-def write_outputs(out: Path, stem: str, title: str, command: str, lines: Sequence[str],
-                  columns: Sequence[Column], found: Mapping[str, Any],
-                  svg: str | None = None) -> None:
-    """``OUT/<stem>.md`` (title, command, table, the picture if any), ``OUT/<stem>.json`` and
-    ``OUT/<stem>.svg``, each written atomically."""
+def run_study(args: argparse.Namespace, columns: Sequence[Column], *, stem: str, title: str,
+              command: str, notes: Sequence[str] = (), x_label: str | None = None) -> None:
+    """Runs (or resumes) the columns, then writes ``OUT/<stem>.md`` (title, command, the table,
+    ``notes``, the picture), ``OUT/<stem>.svg`` (bars per task; with ``x_label``, the curve over
+    the columns' ``x``) and ``OUT/<stem>.json``, each atomically, and prints the table."""
+    out = Path(args.out)
+    run_columns(args, columns)
+    found = summaries(out, columns)
+    lines = success_table(columns, found)
+    svg = (success_bars(columns, found) if x_label is None
+           else success_curve(columns, found, x_label))
+    with atomic_path(out / f"{stem}.svg") as tmp:
+        tmp.write_text(svg)
     page = [f"# {title}", "", f"Command: `{command}`", "",
-            "Cell: success % mean over seeds [min, max] (trials).", "", *lines, ""]
-    if svg is not None:
-        with atomic_path(out / f"{stem}.svg") as tmp:
-            tmp.write_text(svg)
-        page += [f"![{title}]({stem}.svg)", ""]
+            "Cell: success % mean over seeds [min, max] (trials).", "", *lines, "",
+            *([*notes, ""] if notes else []), f"![{title}]({stem}.svg)", ""]
     with atomic_path(out / f"{stem}.md") as tmp:
         tmp.write_text("\n".join(page))
     write_json_atomic(out / f"{stem}.json", {"command": command, "columns": [
         {**dataclasses.asdict(c), "planner": dataclasses.asdict(c.planner),
          "summary": found[c.name]} for c in columns]})
+    print("\n".join(lines))
