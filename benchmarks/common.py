@@ -3,6 +3,7 @@
 * How a script is run, and on what: :func:`argument_parser` (its usage line names
   ``python -m``), :func:`command_line`, :func:`cpu_name`, :func:`timestamp` and
   :func:`print_header` (the lines a timing starts with).
+* :func:`suite_planning_step`: one planning step on a suite instance, to time.
 * The original simulators that vp2 re-implements, for side-by-side comparisons: the
   ``robodesk`` package (:func:`robodesk_package`, :func:`load_package_state`,
   :func:`rebind_package_gl`) and robosuite's tabletop world (:func:`load_into_world`).
@@ -148,3 +149,34 @@ def deterministic_package_ik() -> None:
     from vp2.envs._ik import make_dm_control_ik_deterministic
 
     make_dm_control_ik_deterministic()
+
+
+# ---- one planning step ------------------------------------------------------------------------
+def suite_planning_step(task: str, model_for: Any, num_samples: int) -> Any:
+    """``step()``: one ``PlanningAgent.act`` of ``model_for(action_dim)`` (e.g. a model class)
+    with ``num_samples`` samples on the shipped suite's instance #0 of ``task`` after one zero
+    action (trial seed 0, the CPU), a new agent each call, so that repeated calls time the same
+    step."""
+    import numpy as np
+
+    from vp2.data.suite import TaskSuite
+    from vp2.envs import make_env_from_metadata
+    from vp2.planning import Observation, PlannerConfig, PlanningAgent
+
+    inst = TaskSuite.load().get(task, 0)
+    env = make_env_from_metadata(inst.env_meta)
+    env.reset_to(inst.init_state)
+    frames = [env.render(64)]
+    zero = np.zeros(env.action_dim)
+    env.step(zero)
+    frames.append(env.render(64))
+    obs = Observation(step=1, frames=np.stack(frames), last_action=zero,
+                      env_meta=inst.env_meta, state=env.get_state())
+    model = model_for(env.action_dim)
+
+    def step() -> tuple[np.ndarray, dict[str, Any]]:
+        agent = PlanningAgent(model, planner=PlannerConfig(num_samples=num_samples), device="cpu")
+        agent.reset(task, inst.goal_image, seed=0)
+        return agent.act(obs)
+
+    return step

@@ -22,19 +22,17 @@ import statistics
 import time
 from collections.abc import Callable, Iterator
 
-import numpy as np
 import torch
 
 import vp2.planning.agent as agent_mod
 import vp2.planning.costs as costs
 import vp2.planning.optimizers.mppi as mppi
 import vp2.planning.samplers as samplers
-from benchmarks.common import argument_parser
+from benchmarks.common import argument_parser, suite_planning_step
 from vp2.classifiers.checkpoint import load_classifier
 from vp2.classifiers.registry import shipped_path
-from vp2.data.suite import TaskSuite
 from vp2.models.simulator import SimulatorModel
-from vp2.planning import MPPI, Observation, PlannerConfig, PlanningAgent, robodesk_cost
+from vp2.planning import MPPI, robodesk_cost
 from vp2.spec import SIGMA
 
 
@@ -85,30 +83,7 @@ def legacy() -> Iterator[None]:
 
 
 def _oracle_step(samples: int) -> Callable[[], object]:
-    task = "robodesk/push_red"
-    inst = TaskSuite.load().get(task, 0)
-    model = SimulatorModel(5)
-    from vp2.envs import make_env_from_metadata
-
-    env = make_env_from_metadata(inst.env_meta)
-    env.reset_to(inst.init_state)
-    frames = [env.render(64)]
-    env.step(np.zeros(5))
-    frames.append(env.render(64))
-    obs = Observation(
-        step=1,
-        frames=np.stack(frames),
-        last_action=np.zeros(5),
-        env_meta=inst.env_meta,
-        state=env.get_state(),
-    )
-
-    def step() -> object:
-        agent = PlanningAgent(model, planner=PlannerConfig(num_samples=samples), device="cpu")
-        agent.reset(task, inst.goal_image, seed=0)
-        return agent.act(obs)
-
-    return step
+    return suite_planning_step("robodesk/push_red", SimulatorModel, samples)
 
 
 def main() -> None:

@@ -25,12 +25,9 @@ import numpy as np
 import torch
 
 import vp2.planning.costs as costs
-from benchmarks.common import argument_parser
-from vp2.data.suite import TaskSuite
-from vp2.envs import make_env_from_metadata
+from benchmarks.common import argument_parser, suite_planning_step
 from vp2.envs.tasks import get_task
 from vp2.models.baselines import RepeatLastFrame
-from vp2.planning import Observation, PlannerConfig, PlanningAgent
 
 
 @contextlib.contextmanager
@@ -45,23 +42,9 @@ def shortcut(on: bool) -> Iterator[None]:
 
 
 def _step(task: str):
-    inst = TaskSuite.load().get(task, 0)
-    env = make_env_from_metadata(inst.env_meta)
-    env.reset_to(inst.init_state)
-    frames = [env.render(64)]
-    env.step(np.zeros(env.action_dim))
-    frames.append(env.render(64))
-    obs = Observation(step=1, frames=np.stack(frames), last_action=np.zeros(env.action_dim),
-                      env_meta=inst.env_meta, state=env.get_state())
-    model = RepeatLastFrame(env.action_dim)
     samples = get_task(task).num_samples
-
-    def step() -> np.ndarray:
-        agent = PlanningAgent(model, planner=PlannerConfig(num_samples=samples), device="cpu")
-        agent.reset(task, inst.goal_image, seed=0)
-        return np.asarray(agent.act(obs)[0])
-
-    return step, samples
+    step = suite_planning_step(task, RepeatLastFrame, samples)
+    return (lambda: np.asarray(step()[0])), samples
 
 
 def main() -> None:
