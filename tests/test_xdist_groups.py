@@ -3,8 +3,9 @@ starts or joins a Ray instance must be listed there."""
 
 import re
 from pathlib import Path
+from types import SimpleNamespace
 
-from tests.conftest import RAY_TEST_FILES
+from tests.conftest import RAY_TEST_FILES, pytest_collection_modifyitems
 
 ROOT = Path(__file__).resolve().parents[1]
 # What starts or joins a Ray instance in a test: the ray executor, ray.init, ray start.
@@ -23,24 +24,11 @@ def test_every_test_file_that_uses_ray_is_grouped():
 
 
 def test_the_tests_of_a_file_share_a_group_and_ray_files_share_one():
-    items = []
-
-    class Item:
-        def __init__(self, rel):
-            self.path = ROOT / rel
-            self.marks = []
-
-        def add_marker(self, mark):
-            self.marks.append(mark)
-
-    for rel in ("tests/utils/test_executors.py", "tests/cli/test_run.py", "tests/envs/test_tabletop.py"):
-        items.append(Item(rel))
-    from tests.conftest import pytest_collection_modifyitems
-
-    class Config:
-        rootpath = ROOT
-
-    pytest_collection_modifyitems(Config, items)
-    groups = [item.marks[0].args[0] for item in items]
-    assert [m.name for item in items for m in item.marks] == ["xdist_group"] * 3
-    assert groups == ["ray", "ray", "tests/envs/test_tabletop.py"]
+    files = ("tests/utils/test_executors.py", "tests/cli/test_run.py", "tests/envs/test_tabletop.py")
+    marks: list[list] = [[] for _ in files]
+    items = [SimpleNamespace(path=ROOT / f, add_marker=m.append) for f, m in zip(files, marks, strict=True)]
+    pytest_collection_modifyitems(SimpleNamespace(rootpath=ROOT), items)
+    assert [[(m.name, *m.args) for m in found] for found in marks] == [
+        [("xdist_group", "ray")], [("xdist_group", "ray")],
+        [("xdist_group", "tests/envs/test_tabletop.py")],
+    ]
