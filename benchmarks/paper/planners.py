@@ -2,8 +2,10 @@
 model on the tabletop, L-BFGS at each learning rate the paper swept, and the sampling-based
 planners with the simulator oracle as well (docs/paper.md).
 
-    python -m benchmarks.paper.planners --model zoo:svg_prime-tabletop-120min \\
-        --out outputs/paper/planners [--num-instances 3] [--seeds 0 1 2] [--workers 2]
+    python -m benchmarks.paper.planners --model MODEL --out outputs/paper/planners \\
+        [--num-instances 3] [--seeds 0 1 2] [--workers 2]
+
+``MODEL``: a differentiable tabletop model (any ``--model`` form), e.g. a tabletop SVG′.
 
 Every setting is one resumable ``vp2 run`` under ``OUT/runs/<setting>`` (the same command
 resumes an interrupted study and only runs what is missing); the table of success per task
