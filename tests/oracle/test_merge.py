@@ -61,6 +61,18 @@ def test_the_tabletop_rows_are_replaced_and_the_robodesk_rows_kept():
     )
 
 
+def test_a_command_already_in_the_table_is_listed_once():
+    # A long run ships category by category: each --update brings the same `vp2 run` command.
+    old_meta, old_trials = read_table(RESULTS_DIR / "samples-50")
+    robodesk = [c for c in old_meta["commands"] if "--tasks robodesk " in c]
+    assert len(robodesk) == 1
+    blue = [r for r in old_trials if r["task"] == "robodesk/push_blue"]
+    new_meta = {**old_meta, "note": "", "commands": robodesk}
+    meta, trials = merge_tables(old_meta, old_trials, new_meta, blue)
+    assert meta["commands"] == old_meta["commands"]
+    assert trials == sorted(old_trials, key=lambda r: (r["task"], r["instance"], r["seed"]))
+
+
 def test_kept_records_on_changed_instances_and_other_settings_are_refused():
     old_meta, old_trials = _stale_table()
     new_meta, new_trials = _tabletop_part(old_meta)

@@ -75,8 +75,11 @@ def merge_tables(
         "vp2_version": ", ".join(sorted(versions)),
         "render": dict(sorted(render.items())),
         "classifiers": dict(sorted(classifiers.items())),
-        "commands": [c for c in old_meta.get("commands") or [] if not _only(c, replaced)]
-        + list(new_meta.get("commands") or []),
+        # once each: a category shipped from a run whose other categories were shipped before
+        "commands": list(dict.fromkeys(
+            [c for c in old_meta.get("commands") or [] if not _only(c, replaced)]
+            + list(new_meta.get("commands") or [])
+        )),
     }
     trials = sorted(
         kept + [dict(r) for r in new_trials], key=lambda r: (r["task"], r["instance"], r["seed"])
