@@ -61,15 +61,21 @@ def test_the_tabletop_rows_are_replaced_and_the_robodesk_rows_kept():
     )
 
 
-def test_a_command_already_in_the_table_is_listed_once():
+def test_a_run_already_in_the_table_is_listed_once():
     # A long run ships category by category: each --update brings the same `vp2 run` command.
     old_meta, old_trials = read_table(RESULTS_DIR / "samples-50")
     robodesk = [c for c in old_meta["commands"] if "--tasks robodesk " in c]
     assert len(robodesk) == 1
     blue = [r for r in old_trials if r["task"] == "robodesk/push_blue"]
-    new_meta = {**old_meta, "note": "", "commands": robodesk}
+    by = "vp2 ship-oracle of 1 run(s) (robodesk-50)"
+    old_meta = {**old_meta, "measured_by": f"first runs; robodesk/push_red then by {by}"}
+    new_meta = {**old_meta, "note": "", "commands": robodesk, "measured_by": by}
     meta, trials = merge_tables(old_meta, old_trials, new_meta, blue)
     assert meta["commands"] == old_meta["commands"]
+    # ... and the run's entry of `measured_by` gains the category instead of repeating
+    assert meta["measured_by"] == f"first runs; robodesk/push_blue, robodesk/push_red then by {by}"
+    other, _ = merge_tables(old_meta, old_trials, {**new_meta, "measured_by": "another"}, blue)
+    assert other["measured_by"] == f"{old_meta['measured_by']}; robodesk/push_blue then by another"
     assert trials == sorted(old_trials, key=lambda r: (r["task"], r["instance"], r["seed"]))
 
 

@@ -69,13 +69,14 @@ def merge_tables(
         **dict(old_meta),
         "suite_format": new_meta["suite_format"],
         "date": max(str(old_meta["date"]), str(new_meta["date"])),
-        "measured_by": f"{old_meta.get('measured_by')}; {', '.join(sorted(replaced))} then by "
-        f"{new_meta.get('measured_by')}",
+        "measured_by": _measured_by(
+            str(old_meta.get("measured_by")), replaced, str(new_meta.get("measured_by"))
+        ),
         "note": note.strip(),
         "vp2_version": ", ".join(sorted(versions)),
         "render": dict(sorted(render.items())),
         "classifiers": dict(sorted(classifiers.items())),
-        # once each: a category shipped from a run whose other categories were shipped before
+        # once each: a run shipped category by category brings its command at every update
         "commands": list(dict.fromkeys(
             [c for c in old_meta.get("commands") or [] if not _only(c, replaced)]
             + list(new_meta.get("commands") or [])
@@ -85,6 +86,16 @@ def merge_tables(
         kept + [dict(r) for r in new_trials], key=lambda r: (r["task"], r["instance"], r["seed"])
     )
     return meta, trials
+
+
+def _measured_by(old: str, tasks: set[str], new: str) -> str:
+    """``old`` followed by ``"; TASKS then by NEW"``; when ``old``'s last entry is by the same
+    ``new`` (a run shipped category by category), its tasks join that entry instead."""
+    head, sep, last = old.rpartition("; ")
+    before, by, run = last.partition(" then by ")
+    if sep and by and run == new:
+        old, tasks = head, tasks | set(before.split(", "))
+    return f"{old}; {', '.join(sorted(tasks))} then by {new}"
 
 
 def _only(command: str, tasks: set[str]) -> bool:
