@@ -106,6 +106,9 @@ class Settings:
     #: ``(family, key, value)``: a model setting of the family's predictor changed from its
     #: preset (``--model-arg``), for a variant trained to its own ``--out``.
     model_args: tuple[tuple[str, str, Any], ...] = ()
+    #: ``--num-trajectories``: train on the dataset's first N trajectories only (a data-quantity
+    #: point); the held-out clips it is measured on stay the whole dataset's.
+    max_trajectories: int | None = None
 
 
 def stage_minutes(family: str, level: float, tokenizer_minutes: float) -> list[float]:
@@ -133,6 +136,7 @@ def train_config(s: Settings, family: str, index: int, minutes: float, level: fl
         preset=stage.preset,
         model_overrides=overrides,
         dataset=str(s.data),
+        max_trajectories=s.max_trajectories,
         out_dir=str(s.out / "train" / stage.model),
         steps=2 * (s.levels.index(level) + 1) if s.smoke else STEP_CAP,
         max_minutes=minutes,
@@ -367,6 +371,14 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="a setting of one family's model changed from its preset (e.g. "
         "struct_vrnn:keypoint_sigma=0.3): a variant, trained to its own --out; repeatable",
     )
+    p.add_argument(
+        "--num-trajectories",
+        type=int,
+        default=None,
+        metavar="N",
+        help="train on the dataset's first N trajectories only (a data-quantity study; the "
+        "held-out clips measured stay the whole dataset's); default: all",
+    )
     p.add_argument("--smoke", action="store_true", help="tiny settings for the test")
     return p.parse_args(argv)
 
@@ -399,6 +411,8 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str] | None) -> 
             f"--data {args.data} is not a dataset directory; make the default one with "
             "`vp2 collect robodesk`"
         )
+    if args.num_trajectories is not None and args.num_trajectories <= 0:
+        raise SystemExit(f"--num-trajectories must be a positive count, got {args.num_trajectories}")
     device = str(resolve_device(args.device))
     clock = args.clock or ("cpu" if device == "cpu" else "wall")
     if clock == "cpu" and (args.threads != 1 or device != "cpu"):
@@ -424,6 +438,7 @@ def settings_from_args(args: argparse.Namespace, argv: Sequence[str] | None) -> 
         smoke=args.smoke,
         command=common.command_line(__spec__.name, argv),
         model_args=parse_model_args(args.model_arg, args.families),
+        max_trajectories=args.num_trajectories,
     )
 
 

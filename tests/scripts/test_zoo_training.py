@@ -78,6 +78,17 @@ def test_a_variant_changes_one_familys_model_settings(tmp_path):
             settings_from_args(parse_args(argv), argv)
 
 
+def test_a_data_quantity_point_trains_on_the_first_trajectories_only(tmp_path):
+    argv = ["--data", str(tmp_path), "--families", "svg_prime", "--num-trajectories", "300"]
+    s = settings_from_args(parse_args(argv), argv)
+    assert s.max_trajectories == 300
+    assert train_config(s, "svg_prime", 0, 15, 15).max_trajectories == 300
+    s = settings_from_args(parse_args(["--data", str(tmp_path)]), None)
+    assert train_config(s, "svg_prime", 0, 15, 15).max_trajectories is None
+    with pytest.raises(SystemExit, match="--num-trajectories must be a positive count, got 0"):
+        settings_from_args(parse_args(["--data", str(tmp_path), "--num-trajectories", "0"]), None)
+
+
 def test_curve_markdown_marks_the_points_above_the_target():
     point = {
         "family": "fitvid", "level_minutes": 15, "train_minutes": 15.02, "step": 812,
