@@ -25,9 +25,10 @@ from vp2.run.trial import TrialTimeout, time_limit
 
 MODEL = f"{__name__}:HangModel"
 #: Seconds; a trial of the tiny suite takes well under 1 s in a process that has rendered
-#: before (the test's, which built the suite). A fresh worker's first trial also creates the
-#: renderer's GL context, seconds on 2 busy cores: the worker tests give it more.
-LIMIT = 3.0
+#: before (the test's, which built the suite), but 3.3 s was seen on 2 cores shared by six
+#: busy processes, so the limit leaves room for that. A fresh worker's first trial also
+#: creates the renderer's GL context, seconds on 2 busy cores: the worker tests give it more.
+LIMIT = 10.0
 WORKER_LIMIT = 20.0
 HANG = 60.0  # what the model sleeps: far past the limits
 
