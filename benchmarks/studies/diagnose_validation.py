@@ -83,12 +83,7 @@ def oracle_rates(num_samples: int, asset: Path | None = None) -> tuple[str, dict
     shipped = load_shipped_oracle(asset)
     for table in shipped.tables if shipped else ():
         if table.tasks and all(t.num_samples == num_samples for t in table.tasks.values()):
-            pooled: dict[str, list[int]] = {}
-            for name, t in table.tasks.items():
-                acc = pooled.setdefault(name.split("/")[0], [0, 0])
-                acc[0] += t.successes
-                acc[1] += t.trials
-            return table.name, {env: s / n for env, (s, n) in sorted(pooled.items())}
+            return table.name, table.env_rates()
     tables = shipped.table_list() if shipped else "no oracle asset"
     raise ValueError(f"no shipped oracle table at {num_samples} samples ({tables})")
 
@@ -218,8 +213,8 @@ def validate(
             result[env] = {"models": len(models),
                            "skipped": f"fewer than {MIN_FIT} models to fit, and {why}"}  # fmt: skip
             continue
-        predictor = transfer(result[source]["predictor"], source, env, rates[1], rates[0])
-        held_out = [predict(predictor, m["features"]) for m in models]
+        predictor = transfer(result[source]["predictor"], source, env, rates[0])
+        held_out = [predict(predictor, m["features"], rates[1]) for m in models]
         spearman_table = _spearman_table(models, held_out)
         predictor["validation"] = {
             "held_out_spearman": spearman_table["predicted (held out)"]["rho"],
@@ -228,6 +223,7 @@ def validate(
         result[env] = {
             "models": len(models),
             "transferred_from": source,
+            "oracle_rates": {source: rates[1][source], env: rates[1][env]},
             "held_out": {m["label"]: p for m, p in zip(models, held_out, strict=True)},
             "spearman": spearman_table,
             "predictor": predictor,
@@ -246,11 +242,11 @@ def validation_markdown(
             continue
         if "transferred_from" in res:
             moved = res["predictor"]["transfer"]
-            src, rates = moved["from"], moved["oracle_rates"]
+            src, rates = moved["from"], res["oracle_rates"]
             lines += [
                 f"Fewer than {MIN_FIT} models: the {src} predictor, its prediction times the "
                 f"oracles' success ratio {env}/{src} in table `{moved['table']}` "
-                f"({rates[env]:.3f}/{rates[src]:.3f} = {moved['rescale']:.3f}). None of these "
+                f"({rates[env]:.3f}/{rates[src]:.3f} = {rates[env] / rates[src]:.3f}). None of these "
                 "models was fitted on: every prediction is held out.",
                 "",
             ]

@@ -40,15 +40,29 @@ ENV_SEEDS: dict[tuple[str, int], int] = {
 }
 
 
+def _oracle_rates() -> dict[str, float]:
+    from vp2.oracle.shipped import load_shipped_oracle
+
+    return load_shipped_oracle().table("samples-50").env_rates()
+
+
+#: The shipped oracle's success per environment at 50 samples (what the tabletop's borrowed
+#: diagnose predictor is rescaled by, read when it scores).
+ORACLE_RATES_50 = _oracle_rates()
 #: What the shipped diagnose predictor (vp2/assets/diagnose_predictor.json) says of a tabletop
 #: model: RoboDesk's predictor, rescaled by the two environments' oracle success at 50 samples.
 TABLETOP_PREDICTOR = (
     "success fraction, the robodesk predictor (fitted on 12 robodesk models) times the oracles' "
-    "success ratio tabletop/robodesk, 62%/69% (table samples-50); on tabletop models: Spearman "
+    f"success ratio tabletop/robodesk, {ORACLE_RATES_50['tabletop']:.0%}/"
+    f"{ORACLE_RATES_50['robodesk']:.0%} (table samples-50); on tabletop models: Spearman "
     "+0.50 over 3 models"
 )
-#: Its score for a model with no credit on any measure (action-blind, flat scores).
-TABLETOP_BLIND_SCORE = 0.01633
+#: RoboDesk's predictor's score for a model with no credit on any measure (action-blind, flat
+#: scores), and the tabletop's: the same times the oracles' ratio.
+ROBODESK_BLIND_SCORE = 0.017911
+TABLETOP_BLIND_SCORE = (
+    ROBODESK_BLIND_SCORE * ORACLE_RATES_50["tabletop"] / ORACLE_RATES_50["robodesk"]
+)
 
 
 def make_instance(task: str, index: int) -> TaskInstance:

@@ -19,10 +19,13 @@ from vp2.diagnose.score import (
     features,
     fit,
     leave_one_out,
+    oracle_rates,
     predict,
     predicted_score,
+    rescale,
     transfer,
 )
+from vp2.oracle.shipped import load_shipped_oracle
 
 
 def _report(low: float, top: float, rank: float, rho: float | None, gs: float, env="robodesk",
@@ -134,14 +137,17 @@ def test_a_transferred_predictor_rescales_by_the_oracles_ratio():
     rows, success = _synthetic(5)
     source = fit(rows, success, [10] * 5)
     source.update(models_fitted=5, validation={"held_out_spearman": 0.9, "models": 5})
-    moved = transfer(source, "robodesk", "tabletop", {"robodesk": 0.8, "tabletop": 0.2}, "t50")
-    assert moved["transfer"]["rescale"] == pytest.approx(0.25)
+    rates = {"robodesk": 0.8, "tabletop": 0.2}
+    moved = transfer(source, "robodesk", "tabletop", "t50")
+    # The asset names the table; the rates are read when it scores, not frozen in it.
+    assert moved["transfer"] == {"from": "robodesk", "to": "tabletop", "table": "t50"}
+    assert rescale(moved, rates) == pytest.approx(0.25) and rescale(source) == 1.0
     assert "validation" not in moved  # the source's figure is not the target's
     for row in rows:
-        assert predict(moved, row) == pytest.approx(0.25 * predict(source, row), rel=1e-12)
+        assert predict(moved, row, rates) == pytest.approx(0.25 * predict(source, row), rel=1e-12)
     moved["validation"] = {"held_out_spearman": 0.5, "models": 3}
     report = _report(1.5, 0.5, 11, 0.8, 2.0, env="tabletop")
-    score, reason = predicted_score(report, {"predictors": {"tabletop": moved}})
+    score, reason = predicted_score(report, {"predictors": {"tabletop": moved}}, rates)
     assert score == pytest.approx(0.25 * predict(source, features(report)))
     assert reason == (
         "success fraction, the robodesk predictor (fitted on 5 robodesk models) times the "
@@ -149,7 +155,29 @@ def test_a_transferred_predictor_rescales_by_the_oracles_ratio():
         "Spearman +0.50 over 3 models"
     )
     with pytest.raises(ValueError, match="needs both oracle rates"):
-        transfer(source, "robodesk", "tabletop", {"robodesk": 0.8}, "t50")
+        predict(moved, rows[0], {"robodesk": 0.8})
+    # Without rates given they come from the shipped oracle asset; a table it lacks: no score,
+    # and why.
+    score, reason = predicted_score(report, {"predictors": {"tabletop": moved}})
+    assert score is None and reason.startswith("not predicted: no shipped oracle table 't50'")
+
+
+def test_a_transferred_predictor_follows_the_shipped_oracle_table():
+    rows, success = _synthetic(5)
+    source = fit(rows, success, [10] * 5)
+    moved = transfer(source, "robodesk", "tabletop", "samples-50")
+    shipped = load_shipped_oracle().table("samples-50")
+    rates = shipped.env_rates()
+    expected = (
+        sum(t.successes for n, t in shipped.tasks.items() if n.startswith("tabletop/"))
+        / sum(t.trials for n, t in shipped.tasks.items() if n.startswith("tabletop/"))
+    ) / (
+        sum(t.successes for n, t in shipped.tasks.items() if n.startswith("robodesk/"))
+        / sum(t.trials for n, t in shipped.tasks.items() if n.startswith("robodesk/"))
+    )
+    assert oracle_rates("samples-50") == rates
+    assert rescale(moved) == pytest.approx(expected, rel=1e-12)
+    assert predict(moved, rows[0]) == pytest.approx(expected * predict(source, rows[0]))
 
 
 def test_an_environment_with_few_models_borrows_the_fitted_one(tmp_path):
@@ -263,11 +291,13 @@ def test_the_shipped_predictor_orders_a_planning_model_above_a_blind_one():
     assert good > 0.45 > 0.05 > bad and "fitted on 12 models (held-out Spearman +0.81" in reason
     # The tabletop borrows it, rescaled by the oracles' success at 50 samples (25/40 vs 48/70),
     # validated on the tabletop's three models with control runs.
+    # The ratio is read from the shipped table when it scores (re-measuring a row moves it).
     tabletop = asset["predictors"]["tabletop"]
-    assert tabletop["transfer"]["rescale"] == pytest.approx(0.625 / (48 / 70))
+    assert tabletop["transfer"] == {"from": "robodesk", "to": "tabletop", "table": "samples-50"}
     assert tabletop["validation"] == {"held_out_spearman": 0.5, "models": 3}
     moved, _ = predicted_score({**uses, "env": "tabletop"}, asset)
     assert moved == pytest.approx(good * 0.625 / (48 / 70))
+    assert bad == pytest.approx(0.017911, abs=1e-6)  # tests/benchmark's ROBODESK_BLIND_SCORE
 
 
 def test_the_shipped_predictor_rebuilds_from_its_committed_evidence(tmp_path, monkeypatch):

@@ -11,8 +11,11 @@ predictor is fitted on (:func:`choose_ridge`; nested inside the validation's lea
 
 An environment with too few models' control runs to fit its own predictor borrows another's
 (:func:`transfer`): the same constants, the success they predict rescaled by the ratio of the
-two environments' simulator oracle success at the diagnose's planner budget. Its validation is
-then on all its models, none of which the constants were fitted on.
+two environments' simulator oracle success at the diagnose's planner budget. The asset names
+the shipped oracle table; the ratio is read from it when a score is computed
+(:func:`oracle_rates`), so re-measuring an oracle row moves the score without refitting. Its
+validation is then on all its models, none of which the constants were fitted on (a constant
+rescale leaves their ranking, and so the held-out Spearman, unchanged).
 
 The fitted constants ship as ``vp2/assets/diagnose_predictor.json`` (written by
 ``benchmarks.studies.diagnose_validation``, which also measures the held-out Spearman); without
@@ -144,8 +147,12 @@ def fitted_on_these_features(predictor: Mapping[str, Any]) -> bool:
     return list(predictor.get("features") or []) == list(FEATURES)
 
 
-def predict(predictor: Mapping[str, Any], row: Mapping[str, float]) -> float:
-    """The predicted success fraction of a model with features ``row``."""
+def predict(
+    predictor: Mapping[str, Any], row: Mapping[str, float],
+    rates: Mapping[str, float] | None = None,
+) -> float:
+    """The predicted success fraction of a model with features ``row``. A transferred
+    predictor's is rescaled by the oracles' ratio (:func:`rescale`; ``rates`` as there)."""
     if not fitted_on_these_features(predictor):
         raise ValueError(
             f"the predictor was fitted on features {predictor['features']}, this vp2 computes "
@@ -153,38 +160,64 @@ def predict(predictor: Mapping[str, Any], row: Mapping[str, float]) -> float:
         )
     x = (_matrix([row])[0] - np.asarray(predictor["mean"])) / np.asarray(predictor["scale"])
     p = float(_sigmoid(np.asarray(predictor["intercept"] + x @ np.asarray(predictor["weights"]))))
-    rescale = float((predictor.get("transfer") or {}).get("rescale", 1.0))
-    return min(1.0, p * rescale)
+    return min(1.0, p * rescale(predictor, rates))
 
 
 def transfer(
-    predictor: Mapping[str, Any], source: str, target: str, oracle_rates: Mapping[str, float],
-    table: str,
+    predictor: Mapping[str, Any], source: str, target: str, table: str
 ) -> dict[str, Any]:
     """``source``'s fitted predictor applied to ``target``'s models: the same constants, the
-    predicted success multiplied by ``oracle_rates[target] / oracle_rates[source]`` (the
-    simulator oracle's success in each environment, from the shipped oracle table ``table``).
+    predicted success multiplied by the simulator oracle's success in ``target`` over that in
+    ``source``, both from the shipped oracle table ``table`` (:func:`rescale`, read when the
+    predictor scores, not frozen here).
 
     What carries over is how close a model's measures come to those of models that plan; what
     a perfect model can reach differs by environment, and the oracle measures that.
+    """
+    out = {k: v for k, v in predictor.items() if k not in ("validation", "transfer")}
+    out["transfer"] = {"from": source, "to": target, "table": table}
+    return out
+
+
+def oracle_rates(table: str) -> dict[str, float]:
+    """Each environment's simulator oracle success in the shipped oracle table ``table``
+    (:meth:`vp2.oracle.tables.OracleTable.env_rates`).
+
+    Raises:
+        ValueError: if vp2 ships no oracle asset or no table of that name.
+    """
+    from vp2.oracle.shipped import load_shipped_oracle
+
+    shipped = load_shipped_oracle()
+    if shipped is None:
+        raise ValueError(f"no shipped oracle asset to read table {table!r}'s rates from")
+    try:
+        return shipped.table(table).env_rates()
+    except KeyError as exc:
+        raise ValueError(exc.args[0]) from None
+
+
+def rescale(predictor: Mapping[str, Any], rates: Mapping[str, float] | None = None) -> float:
+    """What a transferred predictor's success is multiplied by: ``rates[to] / rates[from]``,
+    ``rates`` the oracle's success per environment (default: :func:`oracle_rates` of the
+    table the predictor names); 1 for a predictor fitted on its own environment.
 
     Raises:
         ValueError: if either rate is missing or the source's is not positive.
     """
-    rate_s, rate_t = oracle_rates.get(source), oracle_rates.get(target)
+    moved = predictor.get("transfer")
+    if not moved:
+        return 1.0
+    source, target, table = moved.get("from"), moved.get("to"), moved.get("table")
+    if rates is None:
+        rates = oracle_rates(str(table))
+    rate_s, rate_t = rates.get(source), rates.get(target)
     if rate_s is None or rate_t is None or rate_s <= 0:
         raise ValueError(
             f"transfer {source} -> {target} needs both oracle rates, the source's positive; "
-            f"got {dict(oracle_rates)} from table {table!r}"
+            f"got {dict(rates)} from table {table!r}"
         )
-    out = {k: v for k, v in predictor.items() if k not in ("validation", "transfer")}
-    out["transfer"] = {
-        "from": source,
-        "table": table,
-        "oracle_rates": {source: float(rate_s), target: float(rate_t)},
-        "rescale": float(rate_t) / float(rate_s),
-    }
-    return out
+    return float(rate_t) / float(rate_s)
 
 
 def leave_one_out(
@@ -240,11 +273,13 @@ def load_predictor(path: str | Path | None = None) -> dict[str, Any] | None:
 
 
 def predicted_score(
-    report: Mapping[str, Any], asset: Mapping[str, Any] | None
+    report: Mapping[str, Any], asset: Mapping[str, Any] | None,
+    rates: Mapping[str, float] | None = None,
 ) -> tuple[float | None, str]:
     """``(score, reason)``: the report's predicted control success for its environment, or
-    ``None`` and why not (no asset, no predictor fitted for the environment, or the model was
-    not measured: no conditioning and no planning measures)."""
+    ``None`` and why not (no asset, no predictor fitted for the environment, the model was
+    not measured: no conditioning and no planning measures, or a transferred predictor's
+    oracle table is not shipped). ``rates``: as :func:`rescale` (default: the shipped table)."""
     if asset is None:
         return None, NO_PREDICTOR
     predictor = (asset.get("predictors") or {}).get(report.get("env"))
@@ -265,17 +300,21 @@ def predicted_score(
     validation = predictor.get("validation") or {}
     rho = validation.get("held_out_spearman")
     figure = f"Spearman {rho:+.2f} over {validation.get('models')} models" if rho is not None else None
-    score = predict(predictor, features(report))
     moved = predictor.get("transfer")
     if moved:
+        try:
+            rates = rates if rates is not None else oracle_rates(str(moved.get("table")))
+            score = predict(predictor, features(report), rates)
+        except ValueError as exc:
+            return None, f"not predicted: {exc}"
         src, env = moved["from"], report.get("env")
-        rates = moved["oracle_rates"]
         return score, (
             f"success fraction, the {src} predictor (fitted on {predictor.get('models_fitted')} "
             f"{src} models) times the oracles' success ratio {env}/{src}, "
             f"{rates[env]:.0%}/{rates[src]:.0%} (table {moved['table']}); "
             f"on {env} models: {figure or 'unvalidated'}"
         )
+    score = predict(predictor, features(report))
     note = f"held-out {figure}" if figure else "unvalidated"
     return score, (
         f"success fraction, predictor fitted on {predictor.get('models_fitted')} models ({note})"

@@ -91,6 +91,16 @@ class OracleTable:
             f"suite {self.suite_format}"
         )
 
+    def env_rates(self) -> dict[str, float]:
+        """Each environment's success fraction, its tasks' successes and trials pooled:
+        ``{"robodesk": 48 / 70, "tabletop": 25 / 40}``."""
+        pooled: dict[str, list[int]] = {}
+        for name, t in self.tasks.items():
+            acc = pooled.setdefault(name.split("/")[0], [0, 0])
+            acc[0] += t.successes
+            acc[1] += t.trials
+        return {env: s / n for env, (s, n) in sorted(pooled.items()) if n}
+
     def task_summary(self, task: str) -> TaskSummary:
         """The table's row of ``task`` as a :class:`TaskSummary` (what normalising reads)."""
         t = self.tasks[task]
