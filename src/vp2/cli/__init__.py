@@ -13,47 +13,61 @@ Run ``vp2 --help`` or ``vp2 <command> --help``.
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import os
 import sys
 from collections.abc import Sequence
+from types import ModuleType
 
-from vp2.cli import (
-    collect,
-    diagnose,
-    main_job,
-    metrics,
-    render,
-    report,
-    run,
-    ship_oracle,
-    study,
-    tasks,
-    train,
-    train_classifier,
-    zoo,
-)
-
-#: The sub-commands in the order ``vp2 --help`` lists them.
-COMMANDS = (main_job, collect, render, tasks, run, train, train_classifier, metrics, report,
-            ship_oracle, study, zoo, diagnose)
+#: The sub-commands in the order ``vp2 --help`` lists them: command name -> its module in
+#: ``vp2.cli``. A command's module is imported only when that command runs (or when the full
+#: parser is built: ``vp2 --help``, an unknown command), so ``vp2 train`` does not load the
+#: simulators that ``vp2 collect`` needs.
+COMMAND_MODULES: dict[str, str] = {
+    "main": "main_job", "collect": "collect", "render": "render", "tasks": "tasks",
+    "run": "run", "train": "train", "train-classifier": "train_classifier",
+    "metrics": "metrics", "report": "report", "ship-oracle": "ship_oracle", "study": "study",
+    "zoo": "zoo", "diagnose": "diagnose",
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_module(name: str) -> ModuleType:
+    """The module of command ``name`` (a key of :data:`COMMAND_MODULES`), imported."""
+    return importlib.import_module(f"vp2.cli.{COMMAND_MODULES[name]}")
+
+
+def __getattr__(name: str) -> tuple[ModuleType, ...]:
+    # ``COMMANDS`` (every command's module, in order) imports them all, so only on request.
+    if name == "COMMANDS":
+        return tuple(command_module(n) for n in COMMAND_MODULES)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The ``vp2`` parser: every command's, or (``only``) that command's alone."""
     parser = argparse.ArgumentParser(prog="vp2", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
-    for command in COMMANDS:
+    for name in [only] if only is not None else COMMAND_MODULES:
+        command = command_module(name)
         p = sub.add_parser(command.NAME, help=command.HELP, description=command.DESCRIPTION)
         command.configure_parser(p)
         p.set_defaults(fn=command.run_from_args)
     return parser
 
 
+def _command_named(argv: Sequence[str]) -> str | None:
+    """The command ``argv`` runs, if its first argument that is not ``-v`` names one."""
+    rest = [a for a in argv if a not in ("-v", "--verbose")]
+    return rest[0] if rest and rest[0] in COMMAND_MODULES else None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from vp2.data.storage import DatasetError
 
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser(_command_named(argv)).parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("OpenGL").setLevel(logging.WARNING)

@@ -30,6 +30,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from vp2.data import storage
+from vp2.data.datasets import DEFAULT_TRAJECTORIES  # noqa: F401 - re-exported
 from vp2.data.policies import data_noise_sigma, make_data_env, make_policy, stream_names
 from vp2.envs.base import Env
 from vp2.envs.cache import EnvCache
@@ -37,10 +38,6 @@ from vp2.envs.robodesk import ACTION_REPEAT
 from vp2.utils.executors import Executor, LocalExecutor, spawn_manager
 from vp2.utils.io import remove_stale_temporaries, write_json_atomic
 from vp2.utils.seeds import check_seed
-
-#: Trajectories per data stream of the default datasets (``vp2 collect <env>``): small enough
-#: to generate in CI time. Paper scale: robodesk 5,000 per task, tabletop 50,000.
-DEFAULT_TRAJECTORIES = {"robodesk": 20, "tabletop": 100}
 
 log = logging.getLogger(__name__)
 
