@@ -43,10 +43,16 @@ def test_main_job_runs_each_agent_and_writes_the_table(tmp_path, monkeypatch):
 def test_shipped_models_run_only_on_their_envs(tmp_path, monkeypatch):
     monkeypatch.setenv("VP2_ZOO_DIR", str(tmp_path))  # a user's zoo does not hide the package's
     assert main_job.shipped_model_envs() == ("robodesk", "tabletop")  # both are in the package
-    assert main_job.shipped_card("tabletop").checkpoint_path.name == "svg_prime_tiny_tabletop.pt"
+    assert main_job.shipped_card("tabletop").name == "svg_prime-tabletop-m0.0625-60min"
+    assert main_job.shipped_card("tabletop").parameters == 512_867
+    assert main_job.shipped_card("robodesk").checkpoint_path.name == "svg_prime_tiny_robodesk.pt"
     runs = main_job._run_configs(MainJobConfig(agents=("model",)))  # noqa: SLF001
     assert runs["svg_prime"].tasks == ("robodesk", "tabletop")
     assert runs["svg_prime"].model == "vp2.benchmark.main_job:shipped_model"
+    # The zoo entries are model arguments, so part of the protocol a resume checks.
+    assert runs["svg_prime"].model_args == {
+        "robodesk": "svg_prime-tiny-robodesk", "tabletop": "svg_prime-tabletop-m0.0625-60min"}
+    assert "model_args" in runs["svg_prime"].protocol()
     assert runs["svg_prime"].planner.num_samples == 50
     monkeypatch.setattr(main_job, "shipped_model_envs", lambda: ("robodesk",))
     runs = main_job._run_configs(  # noqa: SLF001
@@ -58,7 +64,7 @@ def test_shipped_models_run_only_on_their_envs(tmp_path, monkeypatch):
     assert runs["random actions"].tasks == ("robodesk/push_red", "tabletop")
 
 
-def test_the_model_agent_plans_each_environment_with_its_own_checkpoint(tmp_path):
+def test_the_model_agent_plans_each_environment_with_its_own_checkpoint(tmp_path, monkeypatch):
     for env, action_dim in (("robodesk", 5), ("tabletop", 4)):
         model = main_job.shipped_model(env, action_dim)
         assert type(model).__name__ == "SVGPrime" and model.action_dim == action_dim
@@ -68,6 +74,10 @@ def test_the_model_agent_plans_each_environment_with_its_own_checkpoint(tmp_path
     assert record["model"]["spec"] == "vp2.benchmark.main_job:shipped_model"
     assert record["model"]["name"] == "svg_prime" and len(record["success_steps"]) == 3
     assert "| task | svg_prime |" in table
+    # A run made with other shipped models does not resume with these.
+    monkeypatch.setitem(main_job.SHIPPED_MODELS, "tabletop", "svg_prime-tiny-tabletop")
+    with pytest.raises(ValueError, match="different protocol settings.*svg_prime-tiny-tabletop"):
+        run_main_job(_config(tmp_path, agents=("model",)), gallery=False)
 
 
 def test_a_bad_setting_is_refused_before_anything_is_written(tmp_path):

@@ -49,10 +49,12 @@ log = logging.getLogger(__name__)
 
 #: The shipped small models: per environment, the entry of the package's model zoo
 #: (vp2/assets/zoo) whose card names the checkpoint (in vp2/assets/models) and its sha256.
-#: Each plans only in the environment it was trained on.
+#: Each plans only in the environment it was trained on. The tabletop's is the 1/16 SVG' at
+#: 60 core-minutes, chosen by control: 14 of 36 trials of the size figure's protocol against
+#: 5 of 36 for the 1/8 model of 30 core-minutes it replaced (docs/models.md).
 SHIPPED_MODELS: dict[str, str] = {
     "robodesk": "svg_prime-tiny-robodesk",
-    "tabletop": "svg_prime-tiny-tabletop",
+    "tabletop": "svg_prime-tabletop-m0.0625-60min",
 }
 #: The model spec of the main job's model agent: :func:`shipped_model`, which builds the
 #: shipped checkpoint of whichever environment a trial is in.
@@ -61,14 +63,14 @@ SHIPPED_MODEL_SPEC = "vp2.benchmark.main_job:shipped_model"
 AGENTS: tuple[str, ...] = ("model", "repeat_last_frame", "random")
 
 
-def shipped_card(env: str) -> ZooCard | None:
-    """The zoo card of ``env``'s shipped small model, or ``None`` if it is not installed (the
-    package's zoo, whatever ``$VP2_ZOO_DIR`` names)."""
-    if env not in SHIPPED_MODELS:
+def shipped_card(env: str, name: str | None = None) -> ZooCard | None:
+    """The zoo card of ``env``'s shipped small model (or of the package's zoo entry ``name``),
+    or ``None`` if it is not installed (the package's zoo, whatever ``$VP2_ZOO_DIR`` names)."""
+    if name is None and env not in SHIPPED_MODELS:
         return None
     try:
         zoo = Path(str(resources.files("vp2") / "assets" / "zoo"))
-        card = get_card(SHIPPED_MODELS[env], zoo, verify=False)
+        card = get_card(name or SHIPPED_MODELS[env], zoo, verify=False)
     except ZooError:
         return None
     return card if card.checkpoint_path.is_file() else None
@@ -79,8 +81,14 @@ def shipped_model_envs() -> tuple[str, ...]:
     return tuple(env for env in SHIPPED_MODELS if shipped_card(env) is not None)
 
 
-def shipped_model(env: str, action_dim: int, device: str = "cpu") -> Any:
+def shipped_model(env: str, action_dim: int, device: str = "cpu", robodesk: str | None = None,
+                  tabletop: str | None = None) -> Any:
     """The shipped small model of ``env``: its zoo card's checkpoint, checked against the card.
+
+    ``robodesk`` / ``tabletop`` name the package's zoo entry to use in that environment
+    (default: :data:`SHIPPED_MODELS`). The main job passes them as model arguments, so that
+    they are part of its runs' protocol: a run directory made with other shipped models does
+    not resume with these.
 
     Raises:
         ValueError: no shipped model for ``env`` is installed.
@@ -90,7 +98,7 @@ def shipped_model(env: str, action_dim: int, device: str = "cpu") -> Any:
 
     from vp2.run.model_spec import ModelSpec, resolve_model
 
-    card = shipped_card(env)
+    card = shipped_card(env, {"robodesk": robodesk, "tabletop": tabletop}.get(env))
     if card is None:
         raise ValueError(f"no shipped model for {env!r} in vp2/assets (shipped for: "
                          f"{', '.join(shipped_model_envs()) or 'none'})")
@@ -144,6 +152,7 @@ def _run_configs(config: MainJobConfig) -> dict[str, RunConfig]:
         else:
             runs[shipped_card(envs[0]).family] = RunConfig(
                 model=SHIPPED_MODEL_SPEC, out=str(out / "model"),
+                model_args={env: SHIPPED_MODELS[env] for env in envs},
                 planner=PlannerConfig(num_samples=config.model_samples),
                 **{**common, "tasks": model_tasks or envs})
     if "repeat_last_frame" in config.agents:
