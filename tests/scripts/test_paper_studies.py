@@ -1,12 +1,12 @@
-"""The ensemble and scaling studies of the paper (benchmarks.paper.ensemble, .scaling): their
-columns, and each end to end on a tiny suite with small zoo models."""
+"""The ensemble, loss and scaling studies of the paper (benchmarks.paper.ensemble, .losses,
+.scaling): their columns, and each end to end on a tiny suite with small zoo models."""
 
 from __future__ import annotations
 
 import json
 
 import pytest
-from benchmarks.paper import ensemble, scaling
+from benchmarks.paper import ensemble, losses, scaling
 
 from tests.benchmark import tiny_suite_path
 
@@ -39,6 +39,29 @@ def test_the_ensemble_is_planned_beside_each_of_its_members(tmp_path):
     assert 'data-series="member-1"' in (out / "ensemble.svg").read_text()
     with pytest.raises(SystemExit):
         ensemble.main(["--members", SVG, *_common(out)])  # one member is no ensemble
+
+
+def test_the_loss_variants_are_planned_with_their_metrics_beside(tmp_path):
+    assert losses.TASKS == ("robodesk/push_red", "robodesk/upright_block_off_table",
+                            "robodesk/open_slide")
+    assert list(losses.VARIANTS) == ["svg-mse", "svg-lpips1", "svg-lpips10", "fitvid-mse",
+                                     "fitvid-lpips1", "fitvid-lpips10"]
+    assert losses.parse_column("a=zoo:x=y") == ("a", "zoo:x=y")
+    with pytest.raises(ValueError, match="expected LABEL=MODEL"):
+        losses.parse_column("zoo:x")
+    out = tmp_path / "t1"
+    (out / "metrics").mkdir(parents=True)
+    (out / "metrics" / "mse.json").write_text(json.dumps(
+        {"display": {"fvd": 812.34, "lpips_alex_x100": 6.15, "ssim_x100": 78.09}, "num_clips": 16}))
+    losses.main(["--column", f"mse={SVG}", "--column", f"fv={FITVID}", *_common(out)])
+    data = json.loads((out / "losses.json").read_text())
+    assert [(c["name"], c["model"]) for c in data["columns"]] == [("mse", SVG), ("fv", FITVID)]
+    assert all(c["summary"]["tasks"][0]["num_trials"] == 1 for c in data["columns"])
+    page = (out / "losses.md").read_text()
+    assert "| mse | 812.3 | 6.2 | 78.1 | 16 |" in page
+    assert "| fv | not measured | not measured | not measured | – |" in page
+    with pytest.raises(SystemExit):
+        losses.main(["--column", f"a={SVG}", "--column", f"a={FITVID}", *_common(out)])
 
 
 def test_scaling_draws_a_curve_per_family_over_x(tmp_path, capsys):
