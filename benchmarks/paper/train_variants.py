@@ -15,7 +15,13 @@ device). ``--pack DIR`` also writes the exports and ``variants.json`` as tar fil
         --out outputs/paper/train --jobs 9 --device cuda
     python -m benchmarks.paper.train_variants --list
 
-The same command on a CPU trains the same variants (about 2 core-hours each at 6,000 steps).
+Table 1's variants exist for both environments (``svg-robodesk-mse-s0``,
+``svg-tabletop-mse-s0``, ...); the ensemble's members for RoboDesk. Each ``--data`` dataset
+serves the variants of its environment (read from its manifest); without ``--only``, every
+variant of the given datasets' environments trains.
+
+The same command on a CPU trains the same variants (about 2 core-hours each at 6,000 steps
+with MSE; the LPIPS-VGG loss costs far more on a CPU).
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ import subprocess
 import sys
 import tarfile
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from benchmarks.common import argument_parser, command_line
@@ -47,6 +53,7 @@ class Variant:
     model_args: tuple[str, ...] = ()
     perceptual_weight: float = 0.0
     seed: int = 0
+    env: str = "robodesk"
 
     def train_args(self, data: str, out: Path, steps: int, device: str,
                    max_minutes: float | None) -> list[str]:
@@ -68,15 +75,19 @@ class Variant:
 
 
 SVG = ("svg_prime", "m0.25k0.25", ("m=0.125", "k=0.125"))
+#: The environments of Table 1's variants (the ensemble's members are RoboDesk's).
+ENVS = ("robodesk", "tabletop")
 FITVID = ("fitvid", "mini", ())
 
 
 def _variants() -> dict[str, Variant]:
     found: list[Variant] = []
-    for family, preset, margs in (SVG, FITVID):
-        short = "svg" if family == "svg_prime" else family
-        for weight, tag in ((0.0, "mse"), (1.0, "lpips1"), (10.0, "lpips10")):
-            found.append(Variant(f"{short}-robodesk-{tag}-s0", family, preset, margs, weight, 0))
+    for env in ENVS:
+        for family, preset, margs in (SVG, FITVID):
+            short = "svg" if family == "svg_prime" else family
+            for weight, tag in ((0.0, "mse"), (1.0, "lpips1"), (10.0, "lpips10")):
+                found.append(Variant(f"{short}-{env}-{tag}-s0", family, preset, margs, weight, 0,
+                                     env))
     # The ensemble's members: SVG' with MSE, seeds 0 (the Table 1 MSE run) to 3.
     for seed in (1, 2, 3):
         found.append(Variant(f"svg-robodesk-mse-s{seed}", *SVG, 0.0, seed))
@@ -86,9 +97,10 @@ def _variants() -> dict[str, Variant]:
 VARIANTS = _variants()
 
 
-def train_all(names: Sequence[str], data: str, out: Path, jobs: int, steps: int, device: str,
-              max_minutes: float | None) -> dict[str, dict]:
-    """Runs the variants ``names`` (``jobs`` at a time), exports each; returns their records."""
+def train_all(names: Sequence[str], data: Mapping[str, str], out: Path, jobs: int, steps: int,
+              device: str, max_minutes: float | None) -> dict[str, dict]:
+    """Runs the variants ``names`` (``jobs`` at a time) on ``data[variant.env]``, exports each;
+    returns their records."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "export").mkdir(exist_ok=True)
     (out / "logs").mkdir(exist_ok=True)
@@ -99,8 +111,9 @@ def train_all(names: Sequence[str], data: str, out: Path, jobs: int, steps: int,
         while pending and len(running) < jobs:
             name = pending.pop(0)
             run_dir = out / "runs" / name
-            cmd = [sys.executable, "-m", "vp2.cli", *VARIANTS[name].train_args(
-                data, run_dir, steps, device, max_minutes)]
+            variant = VARIANTS[name]
+            cmd = [sys.executable, "-m", "vp2.cli", *variant.train_args(
+                data[variant.env], run_dir, steps, device, max_minutes)]
             log = open(out / "logs" / f"{name}.log", "a")  # noqa: SIM115 - closed with the process
             running[name] = (subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
                                               env=child_env(jobs)), time.time())
@@ -175,9 +188,48 @@ def pack(out: Path, dest: Path, limit: int = 15 * 2**20) -> list[Path]:
     return written
 
 
+def datasets_by_env(paths: Sequence[str]) -> dict[str, str]:
+    """``{env: path}`` of the datasets, each environment read from the dataset's manifest.
+
+    Raises:
+        ValueError: a path that is not a dataset, or two datasets of one environment.
+    """
+    from vp2.data.storage import DatasetError, load_manifest
+
+    found: dict[str, str] = {}
+    for path in paths:
+        if not Path(path).is_dir():
+            raise ValueError(f"--data {path}: no dataset there (make it with `vp2 collect ENV`)")
+        try:
+            env = load_manifest(path)["config"]["env"]
+        except (DatasetError, KeyError) as exc:
+            raise ValueError(f"--data {path}: {exc}") from exc
+        if env in found:
+            raise ValueError(f"--data: two {env} datasets ({found[env]}, {path}); give one")
+        found[env] = path
+    return found
+
+
+def variants_for(only: Sequence[str] | None, data: Mapping[str, str]) -> list[str]:
+    """The variants to train: ``only``, each of whose environment needs a dataset in ``data``;
+    by default every variant of ``data``'s environments.
+
+    Raises:
+        ValueError: a variant of an environment without a dataset.
+    """
+    if only is None:
+        return [n for n, v in VARIANTS.items() if v.env in data]
+    missing = sorted({VARIANTS[n].env for n in only} - set(data))
+    if missing:
+        raise ValueError(f"--only: no --data for {', '.join(missing)} (give its dataset, e.g. "
+                         f"data/{missing[0]}-...-64px)")
+    return list(only)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argument_parser(__spec__.name, __doc__, full_doc=True)
-    ap.add_argument("--data", default="data/robodesk-20x-64px")
+    ap.add_argument("--data", nargs="+", default=["data/robodesk-20x-64px"],
+                    help="datasets, at most one per environment (its variants train on it)")
     ap.add_argument("--out", default="outputs/paper/train")
     ap.add_argument("--only", nargs="+", choices=sorted(VARIANTS), help="these variants only")
     ap.add_argument("--jobs", type=int, default=1, help="runs at a time")
@@ -190,14 +242,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.list:
         for v in VARIANTS.values():
-            print(f"{v.name}: vp2 " + " ".join(v.train_args(args.data, Path("RUN"), args.steps,
-                                                           args.device, None)))
+            print(f"{v.name}: vp2 " + " ".join(v.train_args(f"DATA[{v.env}]", Path("RUN"),
+                                                           args.steps, args.device, None)))
         return 0
-    if not Path(args.data).is_dir():
-        ap.error(f"--data {args.data}: no dataset there (make it with `vp2 collect robodesk`)")
+    try:
+        data = datasets_by_env(args.data)
+        names = variants_for(args.only, data)
+    except ValueError as exc:
+        ap.error(str(exc))
     out = Path(args.out)
-    names = args.only or list(VARIANTS)
-    records = train_all(names, args.data, out, args.jobs, args.steps, args.device,
+    records = train_all(names, data, out, args.jobs, args.steps, args.device,
                         args.max_minutes)
     index = out / "variants.json"
     old = json.loads(index.read_text()) if index.exists() else {}

@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+import json
 import tarfile
 from pathlib import Path
 
+import pytest
 from benchmarks.paper import train_variants as tv
 
 
 def test_the_variants_differ_only_in_loss_and_seed():
-    assert sorted(tv.VARIANTS) == sorted([
-        "svg-robodesk-mse-s0", "svg-robodesk-lpips1-s0", "svg-robodesk-lpips10-s0",
-        "fitvid-robodesk-mse-s0", "fitvid-robodesk-lpips1-s0", "fitvid-robodesk-lpips10-s0",
-        "svg-robodesk-mse-s1", "svg-robodesk-mse-s2", "svg-robodesk-mse-s3",
-    ])
+    table1 = [f"{f}-{env}-{loss}-s0" for env in ("robodesk", "tabletop") for f in ("svg", "fitvid")
+              for loss in ("mse", "lpips1", "lpips10")]
+    assert sorted(tv.VARIANTS) == sorted(
+        [*table1, "svg-robodesk-mse-s1", "svg-robodesk-mse-s2", "svg-robodesk-mse-s3"])
+    assert {v.env for n, v in tv.VARIANTS.items() if "tabletop" in n} == {"tabletop"}
     v = tv.VARIANTS["svg-robodesk-lpips10-s0"]
     args = v.train_args("data/x", Path("/tmp/none/run"), 6000, "cpu", None)
     assert args[:5] == ["train", "--model", "svg_prime", "--preset", "m0.25k0.25"]
@@ -24,6 +26,31 @@ def test_the_variants_differ_only_in_loss_and_seed():
     mse = tv.VARIANTS["fitvid-robodesk-mse-s0"].train_args("d", Path("/tmp/none/r"), 5, "cpu", 2.5)
     assert "--perceptual" not in mse and mse[mse.index("--max-minutes") + 1] == "2.5"
     assert tv.VARIANTS["svg-robodesk-mse-s3"].seed == 3
+
+
+def _dataset(path: Path, env: str) -> str:
+    from vp2.data.storage import FORMAT, MANIFEST
+
+    path.mkdir(parents=True)
+    (path / MANIFEST).write_text(json.dumps({"format": FORMAT, "config": {"env": env}}))
+    return str(path)
+
+
+def test_each_dataset_serves_the_variants_of_its_environment(tmp_path):
+    robodesk = _dataset(tmp_path / "rd", "robodesk")
+    tabletop = _dataset(tmp_path / "tt", "tabletop")
+    data = tv.datasets_by_env([robodesk, tabletop])
+    assert data == {"robodesk": robodesk, "tabletop": tabletop}
+    assert tv.variants_for(None, {"tabletop": tabletop}) == [
+        "svg-tabletop-mse-s0", "svg-tabletop-lpips1-s0", "svg-tabletop-lpips10-s0",
+        "fitvid-tabletop-mse-s0", "fitvid-tabletop-lpips1-s0", "fitvid-tabletop-lpips10-s0"]
+    assert len(tv.variants_for(None, data)) == 15
+    with pytest.raises(ValueError, match="no --data for robodesk"):
+        tv.variants_for(["svg-tabletop-mse-s0", "svg-robodesk-mse-s1"], {"tabletop": tabletop})
+    with pytest.raises(ValueError, match="two robodesk datasets"):
+        tv.datasets_by_env([robodesk, _dataset(tmp_path / "rd2", "robodesk")])
+    with pytest.raises(ValueError, match="no dataset there"):
+        tv.datasets_by_env([str(tmp_path / "none")])
 
 
 def test_a_run_with_a_checkpoint_resumes(tmp_path):
