@@ -42,11 +42,11 @@ def sh(args: list[str], **kw) -> subprocess.CompletedProcess:
 
 
 def helps(result: Path) -> None:
-    from vp2.cli import COMMANDS
+    from vp2.cli import COMMAND_MODULES
 
     out = result / "help"
     out.mkdir(parents=True, exist_ok=True)
-    commands = [[]] + [[c.NAME] for c in COMMANDS] + [["tasks", s] for s in
+    commands = [[]] + [[name] for name in COMMAND_MODULES] + [["tasks", s] for s in
                                                      ("generate", "list", "show")]
     for cmd in commands:
         p = sh(VP2 + cmd + ["--help"], env={**os.environ, "COLUMNS": "100"})

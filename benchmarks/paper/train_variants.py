@@ -75,9 +75,9 @@ class Variant:
 
 
 SVG = ("svg_prime", "m0.25k0.25", ("m=0.125", "k=0.125"))
+FITVID = ("fitvid", "mini", ())
 #: The environments of Table 1's variants (the ensemble's members are RoboDesk's).
 ENVS = ("robodesk", "tabletop")
-FITVID = ("fitvid", "mini", ())
 
 
 def _variants() -> dict[str, Variant]:

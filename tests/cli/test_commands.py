@@ -11,9 +11,9 @@ from vp2 import cli
 
 
 def test_every_command_module_is_named_as_its_command():
-    modules = cli.COMMANDS
-    assert [m.NAME for m in modules] == list(cli.COMMAND_MODULES)
-    assert len(modules) == 13
+    names = [cli.command_module(name).NAME for name in cli.COMMAND_MODULES]
+    assert names == list(cli.COMMAND_MODULES)
+    assert len(names) == 13
     choices = cli.build_parser()._subparsers._group_actions[0].choices  # noqa: SLF001
     assert list(choices) == list(cli.COMMAND_MODULES)
 

@@ -37,13 +37,6 @@ def command_module(name: str) -> ModuleType:
     return importlib.import_module(f"vp2.cli.{COMMAND_MODULES[name]}")
 
 
-def __getattr__(name: str) -> tuple[ModuleType, ...]:
-    # ``COMMANDS`` (every command's module, in order) imports them all, so only on request.
-    if name == "COMMANDS":
-        return tuple(command_module(n) for n in COMMAND_MODULES)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The ``vp2`` parser: every command's, or (``only``) that command's alone."""
     parser = argparse.ArgumentParser(prog="vp2", description=__doc__.splitlines()[0])
