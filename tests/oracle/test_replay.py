@@ -60,7 +60,8 @@ def test_a_fresh_oracle_trial_replays_to_its_record(tmp_path, monkeypatch):
 MIN_ACTIONS = 3
 #: The RoboDesk categories whose shipped records were measured with the CPU-independent
 #: arithmetic (the classifier's exact inference); the others' predate it.
-EXACT_ROBODESK = frozenset({"robodesk/push_red", "robodesk/push_green", "robodesk/push_blue"})
+EXACT_ROBODESK = frozenset({"robodesk/push_red", "robodesk/push_green", "robodesk/push_blue",
+                            "robodesk/open_slide"})
 
 
 def _exact(record: dict) -> bool:
