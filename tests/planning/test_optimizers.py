@@ -231,6 +231,61 @@ def test_lbfgs_stays_in_bounds_and_approaches_a_bound_optimum() -> None:
     assert plan[:, 0].min() > 0.95
 
 
+def _noisy_quadratic(seed: int):
+    """A quadratic whose every call adds fresh noise, as a model that samples its latents anew
+    on every call gives: the same actions, two scores. Also counts the non-finite actions it
+    is asked to score."""
+    g = torch.Generator().manual_seed(seed)
+    target = torch.rand(H, A, generator=g) * 1.6 - 0.8
+    seen = {"non_finite": 0}
+
+    def objective(actions):
+        if not torch.isfinite(actions).all():
+            seen["non_finite"] += 1
+        noise = torch.randn((), generator=g)
+        return -10 * ((actions - target) ** 2).sum(dim=(1, 2)) + noise
+
+    return objective, seen
+
+
+def test_lbfgs_stops_with_its_best_plan_when_a_noisy_objective_sends_the_line_search_to_nan():
+    # Seed 4 at step length 1e-3: torch's strong-Wolfe line search evaluates one step length
+    # twice, gets two scores and interpolates 0/0 (measured with torch 2.13 on x86-64); before
+    # the guard the NaN point reached the objective and the trial failed.
+    objective, seen = _noisy_quadratic(4)
+    plan, info = LBFGS(lr=1e-3, num_steps=20).optimize(
+        objective, torch.zeros(H, A), torch.Generator()
+    )
+    assert seen["non_finite"] == 0
+    assert torch.isfinite(plan).all() and plan.abs().max() < 1.0
+    assert info.plan_score == max(info.iteration_best_scores) == info.best_score
+    assert info.best_score > info.iteration_best_scores[0]
+
+
+def test_lbfgs_never_evaluates_a_non_finite_point(monkeypatch) -> None:
+    # Whatever torch's line search proposes: a point that is not finite is not scored, and the
+    # plan is the best of those that were.
+    real_step = torch.optim.LBFGS.step
+    calls = {"n": 0}
+
+    def step(self, closure):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            with torch.no_grad():
+                self.param_groups[0]["params"][0].fill_(float("nan"))
+            return closure()
+        return real_step(self, closure)
+
+    monkeypatch.setattr(torch.optim.LBFGS, "step", step)
+    recorder = Recorder(quadratic(_target()))
+    plan, info = LBFGS().optimize(recorder, torch.zeros(H, A), torch.Generator())
+    assert calls["n"] == 3
+    assert all(torch.isfinite(a).all() for a in recorder.actions)
+    best = int(torch.cat(recorder.scores).argmax())
+    assert torch.equal(plan, recorder.actions[best][0])
+    assert info.num_objective_calls == len(recorder.actions)
+
+
 def test_gradient_planners_improve_a_nonconvex_objective() -> None:
     target = _target()
 

@@ -4,6 +4,7 @@ objective without them."""
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Sequence
 from typing import Any, Literal
@@ -21,6 +22,8 @@ from vp2.planning.optimizers.base import (
 )
 from vp2.planning.optimizers.cem import CEM
 from vp2.planning.samplers import ACTION_HIGH, ACTION_LOW, ActionSampler
+
+log = logging.getLogger(__name__)
 
 
 class CEMGD(CEM):
@@ -202,6 +205,10 @@ class CEMGD(CEM):
         return x, score, rounds_best, calls, evaluations
 
 
+class _NonFiniteStep(Exception):
+    """L-BFGS's line search proposed a non-finite point (see :meth:`LBFGS.optimize`)."""
+
+
 class LBFGS(Optimizer):
     """``torch.optim.LBFGS`` on a single action sequence (model-specs §6).
 
@@ -210,7 +217,10 @@ class LBFGS(Optimizer):
     L-BFGS's curvature estimates and the strong-Wolfe line search rely on (clamping would give
     zero gradients past the bounds and kinks at them). The start is ``atanh`` of the initial
     mean pulled ``boundary_eps`` inside the box, so that a saturated warm start still has a
-    gradient. The plan is the best sequence evaluated.
+    gradient. The plan is the best sequence evaluated. If the line search proposes a non-finite
+    point (it can, on an objective that returns different scores for the same actions, as a
+    model that samples its latents on every call does), the optimization stops there and the
+    best sequence evaluated so far is the plan; the non-finite point is never evaluated.
 
     ``lr`` is L-BFGS's initial step length (the paper tuned it over 1e-3, 1e-2, 5e-2, 7e-2).
     The optimizer is deterministic and ignores the generator.
@@ -281,6 +291,8 @@ class LBFGS(Optimizer):
 
         def closure() -> Tensor:
             nonlocal best_score, best_actions
+            if not torch.isfinite(u).all():
+                raise _NonFiniteStep
             actions = torch.tanh(u.detach())  # (H, A)
             score, grad = scores_and_gradients(objective, actions[None], "LBFGS")  # (1,), (1, H, A)
             # Chain rule through tanh by hand: d(-score)/du = -grad * (1 - tanh(u)^2).
@@ -293,7 +305,15 @@ class LBFGS(Optimizer):
 
         previous = None
         for _ in range(self.num_steps):
-            loss = float(lbfgs.step(closure))
+            try:
+                loss = float(lbfgs.step(closure))
+            except _NonFiniteStep:
+                # The strong-Wolfe line search stepped to NaN: on a noisy objective (a model
+                # that samples its latents anew on every call) it can evaluate one step length
+                # twice, get two scores, and interpolate 0/0. Nothing better can follow.
+                log.debug("LBFGS: the line search produced a non-finite step; stopping with "
+                          "the best of %d evaluated sequences", len(scores_seen))
+                break
             if previous is not None and abs(previous - loss) < self.tolerance_change:
                 break
             previous = loss
