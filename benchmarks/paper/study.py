@@ -15,7 +15,7 @@ from typing import Any
 
 from vp2.benchmark.runner import run_benchmark
 from vp2.planning.config import PlannerConfig
-from vp2.report.charts import bar_chart, line_chart
+from vp2.report.charts import bar_chart, line_chart, svg_file_text
 from vp2.run.config import RunConfig
 from vp2.run.run_dir import RunDir
 from vp2.utils.io import atomic_path, write_json_atomic
@@ -166,7 +166,7 @@ def run_study(args: argparse.Namespace, columns: Sequence[Column], *, stem: str,
     svg = (success_bars(columns, found) if x_label is None
            else success_curve(columns, found, x_label))
     with atomic_path(out / f"{stem}.svg") as tmp:
-        tmp.write_text(svg)
+        tmp.write_text(svg_file_text(svg))
     page = [f"# {title}", "", f"Command: `{command}`", "",
             "Cell: success % mean over seeds [min, max] (trials).", "", *lines, "",
             *([*notes, ""] if notes else []), f"![{title}]({stem}.svg)", ""]

@@ -1,10 +1,13 @@
-"""The report's SVG charts: captions fit, point labels do not overlap."""
+"""The report's SVG charts: captions fit, point labels do not overlap, each is an SVG file."""
 
 from __future__ import annotations
 
 import re
+import xml.etree.ElementTree as ET
 
-from vp2.report.charts import _CHAR_WIDTH, line_chart, scatter_plot
+import pytest
+
+from vp2.report.charts import _CHAR_WIDTH, bar_chart, line_chart, scatter_plot, svg_file_text
 
 
 def _labels(svg: str) -> list[tuple[float, float, str, str]]:
@@ -59,3 +62,21 @@ def test_line_chart_places_points_intervals_and_the_target_by_value():
     ref = float(re.search(r'class="reference" x1="[\d.]+" y1="([\d.]+)"', svg).group(1))
     assert cy[("a", 15.0)] > ref > cy[("a", 30.0)]  # 1.0 below the 1.1 line, 1.2 above
     assert re.findall(r'class="legend"[^>]*>(\w)<', svg) == ["a", "b"]
+
+
+@pytest.mark.parametrize("kind", ["bars", "scatter", "lines"])
+def test_every_chart_written_to_a_file_is_an_svg_document(kind):
+    # Shown as an image (docs/paper.md's bars), an <svg> without the SVG namespace is plain XML
+    # to a browser: nothing is drawn.
+    if kind == "bars":
+        svg = bar_chart(["push", "mean"], ["a", "b"], [[1.0, 0.5], [0.0, None]])
+    elif kind == "scatter":
+        svg = scatter_plot([("m1", 0.1, 0.5), ("m2", 0.3, 0.2)], x_label="FVD", y_label="success")
+    else:
+        svg = line_chart({"a": [(1.0, 0.5, 0.4, 0.6)]}, x_label="min", y_label="ratio")
+    text = svg_file_text(svg)
+    root = ET.fromstring(text)
+    assert root.tag == "{http://www.w3.org/2000/svg}svg"
+    assert svg_file_text(text) == text  # already a file's text: unchanged
+    assert root.get("class") == f"chart {kind}"
+    assert root.findall(".//{http://www.w3.org/2000/svg}text")

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import xml.etree.ElementTree as ET
 
 import pytest
 from benchmarks.paper import ensemble, losses, scaling
@@ -36,7 +37,9 @@ def test_the_ensemble_is_planned_beside_each_of_its_members(tmp_path):
     assert record["error"] is None and record["agent"]["ensemble"]["members"] == [SVG, FITVID]
     page = (out / "ensemble.md").read_text()
     assert f"- `member-2`: `{FITVID}`" in page and "![" in page
-    assert 'data-series="member-1"' in (out / "ensemble.svg").read_text()
+    svg = (out / "ensemble.svg").read_text()
+    assert 'data-series="member-1"' in svg
+    assert ET.fromstring(svg).tag == "{http://www.w3.org/2000/svg}svg"  # displays as an image
     with pytest.raises(SystemExit):
         ensemble.main(["--members", SVG, *_common(out)])  # one member is no ensemble
 

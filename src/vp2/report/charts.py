@@ -25,6 +25,20 @@ PALETTE: tuple[str, ...] = (
 )
 
 _FONT = 'font-family="sans-serif" font-size="12"'
+#: The SVG namespace declaration: inline in HTML a chart needs none, written to a file of its own
+#: (shown by ``<img src="chart.svg">`` or a Markdown image) it must have it, or nothing is drawn.
+SVG_NS = 'xmlns="http://www.w3.org/2000/svg"'
+
+
+def svg_file_text(svg: str) -> str:
+    """``svg`` (a chart of this module) as the text of a standalone ``.svg`` file: with the
+    namespace declaration, which inline charts leave out (a self-contained HTML page then names
+    no address at all)."""
+    if svg.startswith(f"<svg {SVG_NS}"):
+        return svg
+    if not svg.startswith("<svg "):
+        raise ValueError(f"not an <svg> element: {svg[:40]!r}")
+    return f"<svg {SVG_NS} " + svg[len("<svg "):]
 
 
 def colour(index: int) -> str:
@@ -368,7 +382,7 @@ def line_chart(
         return top + ph - (v - y_lo) / (y_hi - y_lo) * ph
 
     parts = [
-        f'<svg xmlns="http://www.w3.org/2000/svg" class="chart lines" width="{width}" '
+        f'<svg {SVG_NS} class="chart lines" width="{width}" '
         f'height="{height}" viewBox="0 0 {width} {height}" role="img" {_FONT}>'
         f'<rect width="{width}" height="{height}" fill="white"/>'
     ]

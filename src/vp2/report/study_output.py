@@ -10,6 +10,7 @@ import os
 import re
 from pathlib import Path
 
+from vp2.report.charts import svg_file_text
 from vp2.report.study import StudyResult
 from vp2.utils.io import atomic_path, json_safe, write_json_atomic
 
@@ -31,7 +32,7 @@ def write_study(result: StudyResult, out_dir: str | os.PathLike[str]) -> list[Pa
     for (metric, scope), svg in result.scatter_svgs().items():
         path = out / f"scatter_{metric}_{slug(scope)}.svg"
         with atomic_path(path) as tmp:
-            tmp.write_text(svg.replace("<svg ", '<svg xmlns="http://www.w3.org/2000/svg" ', 1))
+            tmp.write_text(svg_file_text(svg))
         written.append(path)
     return written
 
