@@ -69,6 +69,7 @@ from benchmarks.comparison.zoo_training_curve import (
 from vp2.data.storage import load_manifest
 from vp2.diagnose.model import measure_conditioning
 from vp2.envs import env_class
+from vp2.report.charts import svg_file_text
 from vp2.run.model_spec import parse_model_args as parse_model_args_of_vp2
 from vp2.run.model_spec import resolve_model
 from vp2.training import trainer as trainer_module
@@ -285,7 +286,7 @@ def publish(s: Settings) -> None:
     with atomic_path(s.out / "curve.md") as tmp:
         Path(tmp).write_text(curve_markdown(points, s.target, s.command))
     with atomic_path(s.out / "curve.svg") as tmp:
-        Path(tmp).write_text(curve_svg(points, s.target, s.clock))
+        Path(tmp).write_text(svg_file_text(curve_svg(points, s.target, s.clock)))
 
 
 def run(s: Settings) -> list[dict[str, Any]]:

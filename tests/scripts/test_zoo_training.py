@@ -137,6 +137,7 @@ def test_rounds_train_every_family_in_turn_and_resume(tmp_path):
     svg = (out / "curve.svg").read_text()
     assert svg.count('class="pt"') == 4 and 'data-series="fitvid"' in svg
     assert "training time (core-minutes)" in svg
+    assert svg.startswith('<svg xmlns="http://www.w3.org/2000/svg" ')  # displays as an image
     (out / "curve.svg").unlink()
     _run(data, out, "1", "2", "--publish-only")  # rewrites the page, trains nothing
     assert (out / "curve.svg").read_text() == svg

@@ -382,7 +382,7 @@ def line_chart(
         return top + ph - (v - y_lo) / (y_hi - y_lo) * ph
 
     parts = [
-        f'<svg {SVG_NS} class="chart lines" width="{width}" '
+        f'<svg class="chart lines" width="{width}" '
         f'height="{height}" viewBox="0 0 {width} {height}" role="img" {_FONT}>'
         f'<rect width="{width}" height="{height}" fill="white"/>'
     ]
