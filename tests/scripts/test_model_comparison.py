@@ -563,7 +563,7 @@ def test_a_diagnosis_made_before_its_environments_predictor_gets_the_shipped_sco
 
     from vp2.diagnose.score import features, load_predictor, predict
 
-    report = json.loads((REPO / "results/comparison/tabletop/diagnose/svg_prime.json").read_text())
+    report = json.loads((REPO / "results/comparison/tabletop-suite-v3/diagnose/svg_prime.json").read_text())
     assert report["predicted_control_score"] is None  # measured before the tabletop had one
     settings = {k: report["settings"][k] for k in ("clips", "instances_per_task", "num_samples")}
     (tmp_path / "diagnose").mkdir()
