@@ -140,9 +140,12 @@ def success_bars(columns: Sequence[Column], found: Mapping[str, Any]) -> str:
     return bar_chart(groups, [c.name for c in columns], values, low, high)
 
 
-def success_curve(columns: Sequence[Column], found: Mapping[str, Any], x_label: str) -> str:
+def success_curve(columns: Sequence[Column], found: Mapping[str, Any], x_label: str,
+                  extra: Mapping[str, Sequence[tuple[float, float]]] | None = None,
+                  x_log: bool = False) -> str:
     """Mean success over tasks against each column's ``x``, a line per ``group``; the interval
-    is the seeds' min to max."""
+    is the seeds' min to max. ``extra``: more series as ``(x, success)`` points without an
+    interval (e.g. the paper's published numbers); ``x_log``: a logarithmic x axis."""
     series: dict[str, list[tuple[float, float, float, float]]] = {}
     for c in columns:
         summary = found[c.name]
@@ -150,21 +153,36 @@ def success_curve(columns: Sequence[Column], found: Mapping[str, Any], x_label: 
             continue
         series.setdefault(c.group or "success", []).append(
             (float(c.x), summary["mean"], summary["min"], summary["max"]))
+    for label, points in (extra or {}).items():
+        series[label] = [(float(x), float(y), float(y), float(y)) for x, y in points]
     return line_chart({k: sorted(v) for k, v in series.items()}, x_label=x_label,
-                      y_label="success (mean over tasks)")
+                      y_label="success (mean over tasks)", x_log=x_log)
 
 
 def run_study(args: argparse.Namespace, columns: Sequence[Column], *, stem: str, title: str,
-              command: str, notes: Sequence[str] = (), x_label: str | None = None) -> None:
-    """Runs (or resumes) the columns, then writes ``OUT/<stem>.md`` (title, command, the table,
-    ``notes``, the picture), ``OUT/<stem>.svg`` (bars per task; with ``x_label``, the curve over
-    the columns' ``x``) and ``OUT/<stem>.json``, each atomically, and prints the table."""
+              command: str, notes: Sequence[str] = (), x_label: str | None = None,
+              extra: Mapping[str, Sequence[tuple[float, float]]] | None = None,
+              x_log: bool = False) -> None:
+    """Runs (or resumes) the columns, then publishes what their runs summarise
+    (:func:`publish`)."""
     out = Path(args.out)
     run_columns(args, columns)
-    found = summaries(out, columns)
+    publish(out, columns, summaries(out, columns), stem=stem, title=title, command=command,
+            notes=notes, x_label=x_label, extra=extra, x_log=x_log)
+
+
+def publish(out: Path, columns: Sequence[Column], found: Mapping[str, Any], *, stem: str,
+            title: str, command: str, notes: Sequence[str] = (), x_label: str | None = None,
+            extra: Mapping[str, Sequence[tuple[float, float]]] | None = None,
+            x_log: bool = False) -> None:
+    """Writes ``OUT/<stem>.md`` (title, command, the table, ``notes``, the picture),
+    ``OUT/<stem>.svg`` (bars per task; with ``x_label``, the curve over the columns' ``x``,
+    with the ``extra`` series) and ``OUT/<stem>.json`` (the columns with their summaries, and
+    ``extra``), each atomically, and prints the table."""
+    out = Path(out)
     lines = success_table(columns, found)
     svg = (success_bars(columns, found) if x_label is None
-           else success_curve(columns, found, x_label))
+           else success_curve(columns, found, x_label, extra, x_log))
     with atomic_path(out / f"{stem}.svg") as tmp:
         tmp.write_text(svg_file_text(svg))
     page = [f"# {title}", "", f"Command: `{command}`", "",
@@ -172,7 +190,24 @@ def run_study(args: argparse.Namespace, columns: Sequence[Column], *, stem: str,
             *([*notes, ""] if notes else []), f"![{title}]({stem}.svg)", ""]
     with atomic_path(out / f"{stem}.md") as tmp:
         tmp.write_text("\n".join(page))
-    write_json_atomic(out / f"{stem}.json", {"command": command, "columns": [
+    record: dict[str, Any] = {"command": command, "columns": [
         {**dataclasses.asdict(c), "planner": dataclasses.asdict(c.planner),
-         "summary": found[c.name]} for c in columns]})
+         "summary": found[c.name]} for c in columns]}
+    if extra:
+        record["extra"] = {k: [list(p) for p in v] for k, v in extra.items()}
+    write_json_atomic(out / f"{stem}.json", record)
     print("\n".join(lines))
+
+
+def read_published(path: Path) -> tuple[str, list[Column], dict[str, Any]]:
+    """A study's ``<stem>.json`` back as its command, columns and their summaries (to publish
+    it again without its runs, e.g. on a machine that has only the committed evidence)."""
+    record = json.loads(Path(path).read_text())
+    columns, found = [], {}
+    for entry in record["columns"]:
+        fields = {k: v for k, v in entry.items() if k != "summary"}
+        fields["planner"] = PlannerConfig(**fields["planner"])
+        column = Column(**fields)
+        columns.append(column)
+        found[column.name] = entry["summary"]
+    return record["command"], columns, found

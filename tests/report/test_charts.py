@@ -80,3 +80,19 @@ def test_every_chart_written_to_a_file_is_an_svg_document(kind):
     assert svg_file_text(text) == text  # already a file's text: unchanged
     assert root.get("class") == f"chart {kind}"
     assert root.findall(".//{http://www.w3.org/2000/svg}text")
+
+
+def test_a_logarithmic_x_axis_spaces_decades_evenly():
+    series = {"ours": [(5e5, 0.4, 0.3, 0.4), (5e6, 0.1, 0.1, 0.2)], "paper": [(8.3e7, 0.8, 0.8, 0.8)]}
+    svg = line_chart(series, x_label="parameters", y_label="success", x_log=True)
+    cx = {float(x): float(v) for x, v in re.findall(r'data-x="([\d.e+]+)"[^>]* cx="([\d.]+)"', svg)}
+    # One decade is the same width wherever it lies: 5e5 -> 5e6 as wide as 1e5 -> 1e6.
+    grid = r'<line x1="([\d.]+)" y1="\d+" x2="[\d.]+" y2="\d+" stroke="#eee"/>'  # x ticks
+    ticks = [float(t) for t in re.findall(grid, svg)]
+    decade = ticks[1] - ticks[0]
+    assert len(ticks) == 4
+    assert all(abs((b - a) - decade) < 0.2 for a, b in zip(ticks, ticks[1:], strict=False))
+    assert abs((cx[5e6] - cx[5e5]) - decade) < 0.2
+    assert ticks[0] < cx[5e5] < ticks[1] < cx[5e6] < ticks[2] < cx[8.3e7] < ticks[3]
+    with pytest.raises(ValueError, match="positive"):
+        line_chart({"a": [(0.0, 0.5, 0.4, 0.6)]}, x_label="n", y_label="s", x_log=True)

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import re
 import xml.etree.ElementTree as ET
 
 import pytest
@@ -89,3 +90,35 @@ def test_scaling_draws_a_curve_per_family_over_x(tmp_path, capsys):
     with pytest.raises(SystemExit):
         scaling.main(["--x", "parameters", "--point", "svg", "a", SVG, "lots", *_common(out)])
     assert "X must be a number" in capsys.readouterr().err
+
+
+def test_scaling_replots_its_record_with_the_papers_numbers_on_a_log_axis(tmp_path, capsys):
+    # What the committed evidence allows on a machine without the runs: draw the curve again
+    # from scaling.json, with a published number beside it.
+    out = tmp_path / "size"
+    summary = {"mean": 0.25, "min": 0.2, "max": 0.3,
+               "tasks": [{"task": "tabletop/push_sphere", "mean": 0.25, "min": 0.2, "max": 0.3,
+                          "num_trials": 4}]}  # fmt: skip
+    out.mkdir()
+    (out / "scaling.json").write_text(json.dumps({"command": "python -m x", "columns": [
+        {"name": "svg_prime-a", "model": SVG, "planner": {"optimizer": "mppi"}, "x": 5e5,
+         "group": "svg_prime", "summary": summary},
+        {"name": "svg_prime-b", "model": SVG, "planner": {"optimizer": "mppi"}, "x": 5e6,
+         "group": "svg_prime", "summary": {**summary, "mean": 0.1}}]}))  # fmt: skip
+    scaling.main(["--x", "parameters", "--out", str(out), "--replot", "--log-x",
+                  "--paper-point", "paper", "8.3e7", "0.8"])
+    svg = (out / "scaling.svg").read_text()
+    xs = dict(re.findall(r'data-series="([^"]+)" data-x="([\d.e+]+)"', svg)[-1:])
+    assert xs == {"paper": "83000000.0"} and svg.count('class="pt"') == 3
+    assert ">1e+05<" in svg and ">1e+08<" in svg  # decades as ticks
+    page = (out / "scaling.md").read_text()
+    assert "Command: `python -m x`" in page and "| **25** [20, 30] | **10** [20, 30] |" in page
+    assert "- paper: 80% at 8.3e+07 (published)" in page
+    assert json.loads((out / "scaling.json").read_text())["extra"] == {"paper": [[8.3e7, 0.8]]}
+    for bad, message in ((["--paper-point", "p", "1e6", "80"], "success fraction"),
+                         (["--point", "s", "a", SVG, "1"], "leave out --point")):
+        with pytest.raises(SystemExit):
+            scaling.main(["--x", "parameters", "--out", str(out), "--replot", *bad])
+        assert message in capsys.readouterr().err
+    with pytest.raises(SystemExit, match="no .*scaling.json"):
+        scaling.main(["--x", "parameters", "--out", str(tmp_path / "none"), "--replot"])

@@ -340,6 +340,7 @@ def line_chart(
     reference: tuple[float, str] | None = None,
     title: str = "",
     size: tuple[int, int] = (420, 260),
+    x_log: bool = False,
 ) -> str:
     """Lines with interval bars, one per series, as an ``<svg>`` element (e.g. a measurement
     along training).
@@ -351,10 +352,15 @@ def line_chart(
         reference: ``(y, label)`` of a dashed horizontal line (a target).
         title: Caption drawn above the plot.
         size: Width and height of the plotting area in pixels.
+        x_log: A logarithmic x axis, ticks at the powers of ten around the points (for
+            quantities that span decades, e.g. parameters or trajectories).
 
     Returns:
         The SVG markup; points are ``<circle class="pt">`` with ``data-series``, ``data-x``,
         ``data-y``, ``data-low`` and ``data-high``; the legend lists the series in order.
+
+    Raises:
+        ValueError: ``x_log`` with an x that is not positive.
     """
     left, right, bottom = 60, 150, 44
     pw, ph = size
@@ -366,7 +372,14 @@ def line_chart(
     xs = [p[0] for p in pts] or [0.0, 1.0]
     ys = [v for p in pts for v in p[1:]] + ([reference[0]] if reference else [])
     ys = ys or [0.0, 1.0]
-    x_ticks = nice_ticks(min(0.0, min(xs)), max(xs), 5)
+    if x_log:
+        bad = [x for x in xs if not x > 0]
+        if bad:
+            raise ValueError(f"x_log: every x must be positive, got {bad}")
+        first, last = math.floor(math.log10(min(xs))), math.ceil(math.log10(max(xs)))
+        x_ticks = [10.0**e for e in range(first, max(last, first + 1) + 1)]
+    else:
+        x_ticks = nice_ticks(min(0.0, min(xs)), max(xs), 5)
     y_ticks = nice_ticks(min(ys), max(ys), 5)
     x_lo, x_hi = x_ticks[0], x_ticks[-1]
     y_lo, y_hi = y_ticks[0], y_ticks[-1]
@@ -374,9 +387,11 @@ def line_chart(
         x_hi = x_lo + 1.0
     if y_hi <= y_lo:
         y_hi = y_lo + 1.0
+    to_axis = math.log10 if x_log else float
+    a_lo, a_hi = to_axis(x_lo), to_axis(x_hi)
 
     def px(v: float) -> float:
-        return left + (v - x_lo) / (x_hi - x_lo) * pw
+        return left + (to_axis(v) - a_lo) / (a_hi - a_lo) * pw
 
     def py(v: float) -> float:
         return top + ph - (v - y_lo) / (y_hi - y_lo) * ph
