@@ -103,13 +103,26 @@ def success_lines(out: Path, s: dict[str, Any]) -> list[str]:
     names = s["run_names"]
     summaries = {name: _read(RunDir(out / "runs" / name).summary_json) for name in names}
     tasks: list[str] = []
-    oracle: dict[str, float] = {}
     for summary in summaries.values():
         for row in summary["tasks"] if summary else []:
             if row["task"] not in tasks:
                 tasks.append(row["task"])
+    # The oracle column and the note are those of one table, the first run's: an agent without
+    # planner samples (random) is normalised by another table (the SPEC count's), named below.
+    source = next(
+        (x["oracle_source"] for x in summaries.values() if x and x.get("oracle_source")), None
+    )
+    oracle: dict[str, float] = {}
+    others: dict[str, list[str]] = {}
+    for name, summary in summaries.items():
+        if not summary or not summary.get("oracle_source"):
+            continue
+        if summary["oracle_source"] != source:
+            others.setdefault(summary["oracle_source"], []).append(name)
+            continue
+        for row in summary["tasks"]:
             if row.get("oracle_mean") is not None:
-                oracle[row["task"]] = row["oracle_mean"]
+                oracle.setdefault(row["task"], row["oracle_mean"])
     fewer = "".join(
         f" ({name}: seed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))} only, "
         "`--seeds-for`)"
@@ -151,10 +164,9 @@ def success_lines(out: Path, s: dict[str, Any]) -> list[str]:
     oracle_mean = sum(oracle.values()) / len(oracle) if oracle else None
     lines.append("| **mean over tasks** | " + " | ".join(means) + f" | {_pct(oracle_mean)} |")
     lines.append("| **oracle-normalised mean** | " + " | ".join(normalised) + " | 1 |")
-    source = next(
-        (x["oracle_source"] for x in summaries.values() if x and x.get("oracle_source")), None
-    )
     lines += ["", f"- normalised by the {source}" if source else "- not oracle-normalised"]
+    lines += [f"- {', '.join(names)}: normalised by the {other} instead (its oracle-normalised "
+              "mean; the oracle column is the first table's)" for other, names in others.items()]
     warnings = sorted({w for x in summaries.values() if x for w in x.get("warnings", [])})
     return lines + [f"- {w}" for w in warnings] + [""]
 

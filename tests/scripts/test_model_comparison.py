@@ -357,6 +357,29 @@ def test_the_page_names_the_runs_on_fewer_seeds(tmp_path):
     assert "| robodesk" not in text  # no summary on disk: no task rows
 
 
+def test_the_oracle_column_is_the_table_the_note_names(tmp_path):
+    # A random agent has no planner samples, so its run is normalised by the SPEC count's table;
+    # the column must still show the table the note names (the first run's), not the last's.
+    from benchmarks.comparison.model_comparison_results import success_lines
+
+    from vp2.run.run_dir import RunDir
+
+    for name, source, oracle in (("svg", "table 'samples-50'", 0.9), ("random", "table 'spec'", 0.8)):
+        summary = {"oracle_source": source, "mean": 0.5, "min": 0.5, "max": 0.5, "normalised": 0.5,
+                   "tasks": [{"task": "tabletop/push_sphere", "mean": 0.5, "min": 0.5, "max": 0.5,
+                              "num_trials": 1, "oracle_mean": oracle}]}  # fmt: skip
+        path = RunDir(tmp_path / "runs" / name).summary_json
+        path.parent.mkdir(parents=True)
+        path.write_text(json.dumps(summary))
+    s = {"run_names": ["svg", "random"], "tasks": ["tabletop"], "num_instances": 1, "seeds": [0],
+         "num_samples": 50, "num_steps": 15}  # fmt: skip
+    text = "\n".join(success_lines(tmp_path, s))
+    rows = {r[0]: r for r in _table(text, "| task |")[2:]}
+    assert rows["tabletop/push_sphere"][-1] == "90" and rows["**mean over tasks**"][-1] == "90"
+    assert "- normalised by the table 'samples-50'" in text
+    assert "- random: normalised by the table 'spec' instead" in text
+
+
 def test_the_reading_section_links_the_notes_from_where_the_page_is_written(tmp_path):
     from benchmarks.comparison.model_comparison_results import relative_link, results_markdown
 
