@@ -104,20 +104,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     title = f"Control against {X_LABELS[args.x]}"
     paper = [f"- {label}: {', '.join(f'{y:.0%} at {x:g}' for x, y in pts)} (published)"
              for label, pts in args.paper.items()]
+    out = Path(args.out)
     if args.replot:
-        record = Path(args.out) / "scaling.json"
+        record = out / "scaling.json"
         if not record.is_file():
             raise SystemExit(f"--replot: no {record}; run the study first (without --replot)")
         command, cols, found = study.read_published(record)
-        points = [f"- `{c.name}`: `{c.model}` at {c.x:g} {args.x}" for c in cols]
-        study.publish(Path(args.out), cols, found, stem="scaling", title=title, command=command,
-                      notes=points + paper, x_label=X_LABELS[args.x], extra=args.paper,
-                      x_log=args.log_x)
-        return
-    points = [f"- `{c.name}`: `{c.model}` at {c.x:g} {args.x}" for c in args.columns]
-    study.run_study(args, args.columns, stem="scaling", title=title,
-                    command=command_line(__spec__.name, argv), notes=points + paper,
-                    x_label=X_LABELS[args.x], extra=args.paper, x_log=args.log_x)
+    else:
+        command, cols = command_line(__spec__.name, argv), args.columns
+        study.run_columns(args, cols)
+        found = study.summaries(out, cols)
+    points = [f"- `{c.name}`: `{c.model}` at {c.x:g} {args.x}" for c in cols]
+    study.publish(out, cols, found, stem="scaling", title=title, command=command,
+                  notes=points + paper, x_label=X_LABELS[args.x], extra=args.paper,
+                  x_log=args.log_x)
 
 
 if __name__ == "__main__":

@@ -96,3 +96,5 @@ def test_a_logarithmic_x_axis_spaces_decades_evenly():
     assert ticks[0] < cx[5e5] < ticks[1] < cx[5e6] < ticks[2] < cx[8.3e7] < ticks[3]
     with pytest.raises(ValueError, match="positive"):
         line_chart({"a": [(0.0, 0.5, 0.4, 0.6)]}, x_label="n", y_label="s", x_log=True)
+    empty = line_chart({"a": []}, x_label="n", y_label="s", x_log=True)  # nothing measured yet
+    assert 'class="pt"' not in empty and ">1<" in empty and ">10<" in empty

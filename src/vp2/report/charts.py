@@ -369,7 +369,7 @@ def line_chart(
     top = 28 + _LINE_HEIGHT * max(0, len(title_lines) - 1)
     height = top + ph + bottom
     pts = [p for ps in series.values() for p in ps if all(math.isfinite(v) for v in p)]
-    xs = [p[0] for p in pts] or [0.0, 1.0]
+    xs = [p[0] for p in pts] or ([1.0, 10.0] if x_log else [0.0, 1.0])
     ys = [v for p in pts for v in p[1:]] + ([reference[0]] if reference else [])
     ys = ys or [0.0, 1.0]
     if x_log:
