@@ -61,7 +61,8 @@ MIN_ACTIONS = 3
 #: The RoboDesk categories whose shipped records were measured with the CPU-independent
 #: arithmetic (the classifier's exact inference); the others' predate it.
 EXACT_ROBODESK = frozenset({"robodesk/push_red", "robodesk/push_green", "robodesk/push_blue",
-                            "robodesk/open_slide", "robodesk/open_drawer"})
+                            "robodesk/open_slide", "robodesk/open_drawer",
+                            "robodesk/flat_block_off_table"})
 
 
 def _exact(record: dict) -> bool:
