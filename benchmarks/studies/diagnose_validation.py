@@ -13,7 +13,13 @@
        "metrics": "outputs/comparison/metrics/shipped_svg_prime/metrics.json"},
       ...]}
 
-(``"report": PATH`` names a diagnose report made elsewhere, e.g. by the model comparison.)
+(``"report": PATH`` names a diagnose report made elsewhere, e.g. by the model comparison;
+``"fit": false`` keeps a model out of every fit: one whose control runs follow another protocol,
+such as a study's few tasks, predicted by the predictor fitted on the environment's other
+models.) A top-level ``"common_trials"`` names, per environment, trials every model should have
+(``{"robodesk": {"tasks": [...], "instances": [0], "seeds": [0, 1, 2]}}``): each model whose
+runs hold them all is scored on exactly those, fitted or not, and the held-out predictions are
+ranked against that success too (the one protocol all of them share).
 
 For each model it runs ``vp2 diagnose`` (default settings; the report is kept under
 ``<out>/reports/<label>.json`` and reused), reads the control success (every trial of the run
@@ -88,15 +94,66 @@ def oracle_rates(num_samples: int, asset: Path | None = None) -> tuple[str, dict
     raise ValueError(f"no shipped oracle table at {num_samples} samples ({tables})")
 
 
+#: A trial of a control run: (task, instance, seed).
+TrialKey = tuple[str, int, int]
+
+
+def control_trials(run_dirs: Sequence[str], env: str) -> dict[TrialKey, bool]:
+    """Whether each finished ``env`` trial of the run directories succeeded, by (task,
+    instance, seed); a trial two of the runs hold is counted once (a trial is the same trial
+    in every run: the same model, instance and seed replan the same actions).
+
+    Raises:
+        ValueError: no such trial, or one trial recorded as solved in one run and failed in
+            another.
+    """
+    found: dict[TrialKey, bool] = {}
+    for d in run_dirs:
+        for t in read_trials(d):
+            if not str(t.get("task", "")).startswith(f"{env}/") or t.get("error"):
+                continue
+            key = (str(t["task"]), int(t["instance"]), int(t["seed"]))
+            if found.setdefault(key, bool(t["success"])) != bool(t["success"]):
+                raise ValueError(
+                    f"{key[0]}#{key[1]} seed {key[2]} is recorded both solved and failed in "
+                    f"{list(run_dirs)}: these runs are not of one model; list one of them"
+                )
+    if not found:
+        raise ValueError(f"no {env} trials in {list(run_dirs)}: run `vp2 run` first")
+    return found
+
+
 def control_success(run_dirs: Sequence[str], env: str) -> tuple[float, int]:
     """Success fraction and trial count over the ``env`` trials of the run directories."""
-    trials = [
-        t for d in run_dirs for t in read_trials(d)
-        if str(t.get("task", "")).startswith(f"{env}/") and not t.get("error")
-    ]  # fmt: skip
-    if not trials:
-        raise ValueError(f"no {env} trials in {list(run_dirs)}: run `vp2 run` first")
-    return sum(bool(t["success"]) for t in trials) / len(trials), len(trials)
+    trials = control_trials(run_dirs, env)
+    return sum(trials.values()) / len(trials), len(trials)
+
+
+def common_keys(spec: Mapping[str, Sequence[Any]]) -> list[TrialKey]:
+    """The trials of a ``common_trials`` entry: every task × instance × seed."""
+    return [(t, int(i), int(s)) for t in spec["tasks"] for i in spec["instances"]
+            for s in spec["seeds"]]  # fmt: skip
+
+
+def common_validation(
+    rows: Sequence[Mapping[str, Any]], predicted: Mapping[str, float],
+    keys: Sequence[TrialKey], trials: Mapping[str, Mapping[TrialKey, bool]],
+) -> dict[str, Any]:
+    """Every model of ``rows`` whose control holds all of ``keys``, scored on exactly those:
+    its success there, its held-out prediction (``predicted``) and the Spearman of each
+    predictor with that success; the others listed with how many of the trials they lack."""
+    on = [r for r in rows if all(k in trials[r["label"]] for k in keys)]
+    models = [{**r, "success": sum(trials[r["label"]][k] for k in keys) / len(keys),
+               "trials": len(keys)} for r in on]  # fmt: skip
+    return {
+        "trials": [list(k) for k in keys],
+        "models": len(models),
+        "success": {m["label"]: m["success"] for m in models},
+        "fitted": {m["label"]: m["fit"] for m in models},
+        "missing": {r["label"]: sum(k not in trials[r["label"]] for k in keys)
+                    for r in rows if r not in on},  # fmt: skip
+        "spearman": _spearman_table(models, [predicted[m["label"]] for m in models]),
+    }
 
 
 def perceptual(path: str | None) -> dict[str, float | None]:
@@ -161,20 +218,27 @@ def _spearman_table(models: Sequence[Mapping[str, Any]], held_out: Sequence[floa
 def validate(
     rows: Sequence[Mapping[str, Any]],
     rates: tuple[str, Mapping[str, float]] | None = None,
+    common: Mapping[str, Sequence[TrialKey]] | None = None,
+    control: Mapping[str, Mapping[TrialKey, bool]] | None = None,
 ) -> dict[str, Any]:
     """Per environment: held-out predictions and the Spearman of each predictor with success.
 
     Args:
         rows: One per model: ``label``, ``env``, ``features``, ``success``, ``trials``,
-            ``ssim``, ``lpips``, ``fvd``.
+            ``ssim``, ``lpips``, ``fvd``, and ``fit`` (default true: a model with
+            ``fit`` false is in no fit and no figure of the fitted models; the predictor
+            fitted on the others predicts it, under ``unfitted``).
         rates: ``(table, {env: oracle success})`` (:func:`oracle_rates`) for the environments
             with fewer than :data:`MIN_FIT` models; ``None``: those are skipped.
+        common: Per environment, the trials every model is also scored on
+            (:func:`common_validation`, under ``common``); needs ``control``.
+        control: Each model's control trials by label (:func:`control_trials`).
     """
     result: dict[str, Any] = {}
-    envs = sorted({r["env"] for r in rows})
-    few = [e for e in envs if sum(r["env"] == e for r in rows) < MIN_FIT]
+    envs = sorted({r["env"] for r in rows if r.get("fit", True)})
+    few = [e for e in envs if sum(r["env"] == e and r.get("fit", True) for r in rows) < MIN_FIT]
     for env in envs:
-        models = [r for r in rows if r["env"] == env]
+        models = [r for r in rows if r["env"] == env and r.get("fit", True)]
         if env in few:
             continue
         feats = [m["features"] for m in models]
@@ -200,7 +264,7 @@ def validate(
     fitted = [e for e in envs if "predictor" in result.get(e, {})]
     source = max(fitted, key=lambda e: (result[e]["models"], e), default=None)
     for env in few:
-        models = [r for r in rows if r["env"] == env]
+        models = [r for r in rows if r["env"] == env and r.get("fit", True)]
         if source is None:
             why = "no environment with a fitted predictor"
         elif rates is None:
@@ -228,6 +292,21 @@ def validate(
             "spearman": spearman_table,
             "predictor": predictor,
         }
+    for env, res in result.items():
+        if "predictor" not in res:
+            continue
+        unfitted = [r for r in rows if r["env"] == env and not r.get("fit", True)]
+        env_rates = rates[1] if "transfer" in res["predictor"] and rates else None
+        if unfitted:
+            res["unfitted"] = {r["label"]: predict(res["predictor"], r["features"], env_rates)
+                               for r in unfitted}  # fmt: skip
+        if common and env in common:
+            if control is None:
+                raise ValueError("common trials need each model's control trials")
+            predicted = {**res["held_out"], **res.get("unfitted", {})}
+            res["common"] = common_validation(
+                [{"fit": True, **r} for r in rows if r["env"] == env], predicted,
+                common[env], control)
     return result
 
 
@@ -256,7 +335,7 @@ def validation_markdown(
             + " |",
             "|---|---|---|---|---|---|---|" + "---|" * len(FEATURES),
         ]
-        for r in (r for r in rows if r["env"] == env):
+        for r in (r for r in rows if r["env"] == env and r.get("fit", True)):
             cells = [
                 r["label"], f"{100 * r['success']:.0f}%", str(r["trials"]),
                 f"{100 * res['held_out'][r['label']]:.0f}%",
@@ -269,12 +348,66 @@ def validation_markdown(
             "Spearman with measured success (+1: the better value goes with more success):",
             "",
         ]
-        lines += ["| predictor | Spearman | models |", "|---|---|---|"]
-        for name, v in res["spearman"].items():
-            rho = "–" if v["rho"] is None else f"{v['rho']:+.2f}"
-            lines.append(f"| {name} | {rho} | {v['models']} |")
-        lines.append("")
+        lines += _spearman_lines(res["spearman"])
+        if res.get("unfitted"):
+            lines += _unfitted_lines([r for r in rows if r["label"] in res["unfitted"]], res)
+        if res.get("common"):
+            lines += _common_lines(rows, res["common"], {**res["held_out"], **res["unfitted"]}
+                                   if res.get("unfitted") else res["held_out"])
     return "\n".join(lines)
+
+
+def _spearman_lines(table: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    lines = ["| predictor | Spearman | models |", "|---|---|---|"]
+    for name, v in table.items():
+        rho = "–" if v["rho"] is None else f"{v['rho']:+.2f}"
+        lines.append(f"| {name} | {rho} | {v['models']} |")
+    return lines + [""]
+
+
+def _unfitted_lines(rows: Sequence[Mapping[str, Any]], res: Mapping[str, Any]) -> list[str]:
+    lines = [
+        "Models in no fit (their control follows another protocol), predicted by the predictor "
+        "fitted on the models above:", "",
+        "| model | measured success | trials | predicted | SSIM | LPIPS | FVD |",
+        "|---|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for r in rows:
+        lines.append("| " + " | ".join([
+            r["label"], f"{100 * r['success']:.0f}%", str(r["trials"]),
+            f"{100 * res['unfitted'][r['label']]:.0f}%",
+            *("–" if r[k] is None else f"{r[k]:.4g}" for k in ("ssim", "lpips", "fvd")),
+        ]) + " |")  # fmt: skip
+    return lines + [""]
+
+
+def _common_lines(rows: Sequence[Mapping[str, Any]], common: Mapping[str, Any],
+                  predicted: Mapping[str, float]) -> list[str]:
+    tasks = sorted({t for t, _, _ in common["trials"]})
+    seeds = sorted({s for _, _, s in common["trials"]})
+    instances = sorted({i for _, i, _ in common["trials"]})
+    lines = [
+        f"### Every model on the same {len(common['trials'])} trials", "",
+        f"The trials every model's runs hold: instance(s) {', '.join(map(str, instances))} of "
+        f"{', '.join(tasks)}, seeds {', '.join(map(str, seeds))}. Success on exactly those; "
+        "the prediction is held out (a fitted model's from the fit without it).", "",
+        "| model | fitted on | success on these trials | predicted (held out) | SSIM | LPIPS | FVD |",
+        "|---|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    by_label = {r["label"]: r for r in rows}
+    for label, success in common["success"].items():
+        r = by_label[label]
+        lines.append("| " + " | ".join([
+            label, "yes" if common["fitted"][label] else "no",
+            f"{round(success * len(common['trials']))} of {len(common['trials'])}",
+            f"{100 * predicted[label]:.0f}%",
+            *("–" if r[k] is None else f"{r[k]:.4g}" for k in ("ssim", "lpips", "fvd")),
+        ]) + " |")  # fmt: skip
+    if common["missing"]:
+        lines += ["", "Not on these trials (trials lacking): " + ", ".join(
+            f"{label} ({n})" for label, n in common["missing"].items()) + "."]
+    lines += ["", "Spearman with success on these trials:", ""]
+    return lines + _spearman_lines(common["spearman"])
 
 
 def _rates_for(
@@ -315,21 +448,25 @@ def main(argv: Sequence[str] | None = None) -> None:
         return
     if args.models is None:
         parser.error("--models is required (or --compact RUN_DIR DEST)")
-    entries = json.loads(args.models.read_text())["models"]
+    listing = json.loads(args.models.read_text())
+    entries = listing["models"]
     labels = [e["label"] for e in entries]
     if len(set(labels)) != len(labels):
         raise SystemExit(f"{args.models}: labels must be unique, got {labels}")
-    rows, reports = [], []
+    shared = {env: common_keys(spec) for env, spec in listing.get("common_trials", {}).items()}
+    rows, reports, trials = [], [], {}
     for entry in entries:
         report = diagnose_report(entry, args.out)
         reports.append(report)
-        success, trials = control_success(entry["control"], entry["env"])
+        trials[entry["label"]] = control_trials(entry["control"], entry["env"])
+        success, count = control_success(entry["control"], entry["env"])
         rows.append({
-            "label": entry["label"], "env": entry["env"], "features": features(report),
-            "success": success, "trials": trials, **perceptual(entry.get("metrics")),
+            "label": entry["label"], "env": entry["env"], "fit": bool(entry.get("fit", True)),
+            "features": features(report), "success": success, "trials": count,
+            **perceptual(entry.get("metrics")),
         })  # fmt: skip
-        print(f"{entry['label']}: success {success:.2f} ({trials} trials)", flush=True)
-    result = validate(rows, _rates_for(rows, reports))
+        print(f"{entry['label']}: success {success:.2f} ({count} trials)", flush=True)
+    result = validate(rows, _rates_for([r for r in rows if r["fit"]], reports), shared, trials)
     command = common.command_line(__spec__.name, argv)
     write_json_atomic(
         args.out / "validation.json",
@@ -343,7 +480,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             "format": FORMAT,
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "command": command,
-            "models": {env: [r["label"] for r in rows if r["env"] == env] for env in predictors},
+            "models": {env: [r["label"] for r in rows if r["env"] == env and r["fit"]]
+                       for env in predictors},
             "predictors": predictors,
         }))  # fmt: skip
         print(f"wrote {args.asset}")

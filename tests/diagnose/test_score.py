@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from benchmarks.studies import diagnose_validation as dv
 
+from vp2.diagnose.measures import spearman
 from vp2.diagnose.score import (
     FEATURES,
     NO_PREDICTOR,
@@ -229,7 +230,8 @@ def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path)
         solved = round(10 * success[k])
         with (run / "trials.jsonl").open("w") as f:
             for t in range(10):
-                f.write(json.dumps({"task": "robodesk/push_red", "success": t < solved}) + "\n")
+                f.write(json.dumps({"task": "robodesk/push_red", "instance": t, "seed": 0,
+                                    "success": t < solved}) + "\n")
         metrics = tmp_path / "runs" / f"{label}.json"
         # SSIM unrelated to success; FVD falls as success rises.
         metrics.write_text(json.dumps({"metrics": {"ssim": [0.5, 0.9, 0.6, 0.8, 0.7, 0.55][k],
@@ -256,6 +258,81 @@ def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path)
     page = (tmp_path / "out" / "validation.md").read_text()
     assert "| predicted (held out) | +0.94 | 6 |" in page
     assert "| oracle_agreement alone | +1.00 | 6 |" in page  # each measure, nothing fitted
+
+
+def _write_model(root, label, q, outcomes):
+    """A diagnose report of quality ``q`` under ``root/out/reports`` and a control run of
+    ``outcomes`` ({(instance, seed): solved} on push_red); returns the model list entry."""
+    report = _report(1.0 + 0.6 * q, q, 51 - 50 * q, q, 3 * q, agree=0.7 * q)
+    (root / "out" / "reports").mkdir(parents=True, exist_ok=True)
+    (root / "out" / "reports" / f"{label}.json").write_text(json.dumps(report))
+    run = root / "runs" / label
+    run.mkdir(parents=True)
+    (run / "trials.jsonl").write_text("".join(
+        json.dumps({"task": "robodesk/push_red", "instance": i, "seed": s, "success": ok}) + "\n"
+        for (i, s), ok in outcomes.items()))  # fmt: skip
+    return {"label": label, "env": "robodesk", "model": "unused", "control": [str(run)]}
+
+
+def test_models_of_another_protocol_are_predicted_not_fitted_and_all_meet_on_common_trials(
+    tmp_path,
+):
+    # Six fitted models on instances #0-#9 (seed 0), success rising with their measures; two
+    # models of a study's protocol (#0-#2, seeds 0 and 1) kept out of the fit.
+    entries = [_write_model(tmp_path, f"m{k}", q, {(i, 0): i <= k for i in range(10)})
+               for k, q in enumerate(np.linspace(0, 1, 6))]  # fmt: skip
+    study = {"u0": (0.2, {(0, 0): False, (1, 0): False, (2, 0): True, (0, 1): True}),
+             "u1": (0.9, {(0, 0): True, (1, 0): True, (2, 0): True, (1, 1): False})}
+    entries += [{**_write_model(tmp_path, label, q, outcomes), "fit": False}
+                for label, (q, outcomes) in study.items()]  # fmt: skip
+    # m0 lacks #2 of the common trials below (solved only #0): drop its #2.
+    m0 = tmp_path / "runs" / "m0" / "trials.jsonl"
+    m0.write_text("".join(line + "\n" for line in m0.read_text().splitlines()
+                          if '"instance": 2,' not in line))  # fmt: skip
+    listing = {"models": entries,
+               "common_trials": {"robodesk": {"tasks": ["robodesk/push_red"],
+                                              "instances": [0, 1, 2], "seeds": [0]}}}
+    (tmp_path / "models.json").write_text(json.dumps(listing))
+    dv.main(["--models", str(tmp_path / "models.json"), "--out", str(tmp_path / "out"),
+             "--write-asset", "--asset", str(tmp_path / "asset.json")])  # fmt: skip
+    asset = json.loads((tmp_path / "asset.json").read_text())
+    # The fit and its figures are the six fitted models' alone.
+    assert asset["models"]["robodesk"] == [f"m{k}" for k in range(6)]
+    fitted = asset["predictors"]["robodesk"]
+    assert fitted["models_fitted"] == 6 and fitted["validation"]["models"] == 6
+    result = json.loads((tmp_path / "out" / "validation.json").read_text())["result"]["robodesk"]
+    assert set(result["held_out"]) == {f"m{k}" for k in range(6)}
+    reports = {label: json.loads((tmp_path / "out" / "reports" / f"{label}.json").read_text())
+               for label in ("u0", "u1")}  # fmt: skip
+    for label in ("u0", "u1"):
+        assert result["unfitted"][label] == pytest.approx(
+            predict(fitted, features(reports[label])))
+    assert result["unfitted"]["u1"] > result["unfitted"]["u0"]
+    # The common trials: #0-#2 at seed 0. m0 lacks one; the other seven are scored on the three.
+    common = result["common"]
+    assert common["trials"] == [["robodesk/push_red", i, 0] for i in range(3)]
+    assert common["missing"] == {"m0": 1}
+    assert common["success"] == pytest.approx(
+        {"m1": 2 / 3, "m2": 1, "m3": 1, "m4": 1, "m5": 1, "u0": 1 / 3, "u1": 1})
+    assert common["fitted"] == {**{f"m{k}": True for k in range(1, 6)}, "u0": False, "u1": False}
+    predicted = {**result["held_out"], **result["unfitted"]}
+    expected = spearman(np.array([predicted[m] for m in common["success"]]),
+                        np.array(list(common["success"].values())))
+    assert common["spearman"]["predicted (held out)"] == {"rho": pytest.approx(expected),
+                                                          "models": 7}  # fmt: skip
+    page = (tmp_path / "out" / "validation.md").read_text()
+    assert "### Every model on the same 3 trials" in page
+    assert "| u0 | no | 1 of 3 |" in page and "Not on these trials (trials lacking): m0 (1)." in page
+    assert "| u1 | 75% | 4 |" in page  # its own protocol's success, beside its prediction
+    # One trial recorded both ways in a model's two runs is refused, not averaged.
+    other = tmp_path / "runs" / "u1b"
+    other.mkdir()
+    (other / "trials.jsonl").write_text(json.dumps(
+        {"task": "robodesk/push_red", "instance": 1, "seed": 1, "success": True}) + "\n")
+    with pytest.raises(ValueError, match=r"push_red#1 seed 1 is recorded both solved and failed"):
+        dv.control_trials([str(tmp_path / "runs" / "u1"), str(other)], "robodesk")
+    # The same trial in two runs counts once.
+    assert dv.control_success([str(tmp_path / "runs" / "u0")] * 2, "robodesk") == (0.5, 4)
 
 
 def test_a_wide_interval_around_1_is_inconclusive_not_blind():
