@@ -46,6 +46,9 @@ def add_run_arguments(parser: argparse.ArgumentParser, tasks: Sequence[str]) -> 
     parser.add_argument("--only", nargs="+", default=None, help="run only these columns")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--device", default=None)
+    parser.add_argument("--stop-on-success", action="store_true",
+                        help="end each trial at its first success (success is at any step, so "
+                        "outcomes are unchanged; a study's simulator columns take far less time)")
     parser.add_argument("--no-gifs", action="store_true")
     parser.add_argument("--no-progress", action="store_true")
 
@@ -63,6 +66,7 @@ def run_config(args: argparse.Namespace, column: Column) -> RunConfig:
         model=column.model, out=str(Path(args.out) / "runs" / column.name), suite=args.suite,
         tasks=tuple(args.tasks), num_instances=args.num_instances, seeds=tuple(args.seeds),
         planner=planner, num_steps=args.num_steps, workers=args.workers, resume=True,
+        stop_on_success=args.stop_on_success,
         save_gifs=not args.no_gifs, progress=not args.no_progress, device=args.device,
     )
 

@@ -59,3 +59,17 @@ def test_the_study_runs_each_setting_resumably_and_tabulates_them(tmp_path, caps
     assert "[mppi]" in capsys.readouterr().out
     with pytest.raises(SystemExit, match="no column oracle-mppi"):
         planners.main(argv + ["oracle-mppi"])
+
+
+def test_stop_on_success_reaches_every_columns_run():
+    from benchmarks.paper import study
+
+    base = ["--model", "m", "--out", "o", "--num-samples", "50"]
+    columns = planners.settings("m", [1e-2], True)
+    stopping = planners.parse_args(base + ["--stop-on-success"])
+    assert [study.run_config(stopping, c).stop_on_success for c in columns] == [True] * 6
+    whole = planners.parse_args(base)
+    config = study.run_config(whole, columns[-1])  # oracle-cem
+    assert config.stop_on_success is False and config.model == "simulator"
+    assert (config.out, config.planner.optimizer, config.planner.num_samples) == (
+        "o/runs/oracle-cem", "cem", 50)
