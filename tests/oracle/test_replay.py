@@ -1,9 +1,10 @@
 """Replaying oracle trials against their records: a fresh 2-step trial of the runner, and
 records behind the shipped tables (``results/oracle``): per environment, the shortest successful
 trial with at least two planned steps among the records measured with the CPU-independent
-arithmetic (all the tabletop's; RoboDesk's in ``EXACT_ROBODESK``), whole and exactly (the
-shortest, so that CI replays ~2 planning steps rather than 4); while RoboDesk has none, its
-first record's first two steps within 1e-5 (those rows predate that arithmetic)."""
+arithmetic (all the tabletop's; RoboDesk's of the tables in ``EXACT_ROBODESK_TABLES``), whole
+and exactly (the shortest, so that CI replays ~2 planning steps rather than 4); for an
+environment with none, its first record's first two steps within 1e-5 (records that predate
+that arithmetic)."""
 
 from __future__ import annotations
 
@@ -58,15 +59,13 @@ def test_a_fresh_oracle_trial_replays_to_its_record(tmp_path, monkeypatch):
 #: Fewest actions of a trial replayed whole: the zero action and two planned steps, so that a
 #: planned step's end state is planned from again.
 MIN_ACTIONS = 3
-#: The RoboDesk categories whose shipped records were measured with the CPU-independent
-#: arithmetic (the classifier's exact inference); the others' predate it.
-EXACT_ROBODESK = frozenset({"robodesk/push_red", "robodesk/push_green", "robodesk/push_blue",
-                            "robodesk/open_slide", "robodesk/open_drawer",
-                            "robodesk/flat_block_off_table"})
+#: The shipped tables whose RoboDesk records were measured with the CPU-independent arithmetic
+#: (the classifier's exact inference): all of ``samples-50``'s; the ``spec`` table's predate it.
+EXACT_ROBODESK_TABLES = frozenset({"samples-50"})
 
 
-def _exact(record: dict) -> bool:
-    return record["task"].startswith("tabletop/") or record["task"] in EXACT_ROBODESK
+def _exact(record: dict, table: str) -> bool:
+    return record["task"].startswith("tabletop/") or table in EXACT_ROBODESK_TABLES
 
 
 def _replayed_records(root: Path = RESULTS) -> dict[str, tuple[dict, dict]]:
@@ -84,7 +83,7 @@ def _replayed_records(root: Path = RESULTS) -> dict[str, tuple[dict, dict]]:
             env = record["task"].split("/")[0]
             first.setdefault(env, (meta, record))
             length = len(record["actions"])
-            if _exact(record) and record["success"] and length >= MIN_ACTIONS:
+            if _exact(record, meta["name"]) and record["success"] and length >= MIN_ACTIONS:
                 rank = (record["num_samples"] > FAST_SAMPLES, length)
                 if env not in shortest or rank < shortest[env][0]:
                     shortest[env] = (rank, meta, record)
@@ -108,7 +107,7 @@ def test_the_committed_oracle_records_replay(env):
         f"results/oracle holds no {env} oracle record: the shipped tables' evidence is missing"
     )
     meta, record = found[env]
-    if _exact(record):
+    if _exact(record, meta["name"]):
         # Measured with the CPU-independent arithmetic: the whole trial, to the last bit.
         replay = replay_record(record, steps=len(record["actions"]), settings=meta["settings"])
         assert record["success"] and replay.mismatch(atol=0.0) is None, (

@@ -93,7 +93,7 @@ class OracleTable:
 
     def env_rates(self) -> dict[str, float]:
         """Each environment's success fraction, its tasks' successes and trials pooled:
-        ``{"robodesk": 48 / 70, "tabletop": 25 / 40}``."""
+        ``{"robodesk": 49 / 70, "tabletop": 25 / 40}``."""
         pooled: dict[str, list[int]] = {}
         for name, t in self.tasks.items():
             acc = pooled.setdefault(name.split("/")[0], [0, 0])
