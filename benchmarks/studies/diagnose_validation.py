@@ -149,6 +149,7 @@ def common_validation(
         "trials": [list(k) for k in keys],
         "models": len(models),
         "success": {m["label"]: m["success"] for m in models},
+        "predicted": {m["label"]: predicted[m["label"]] for m in models},
         "fitted": {m["label"]: m["fit"] for m in models},
         "missing": {r["label"]: sum(k not in trials[r["label"]] for k in keys)
                     for r in rows if r not in on},  # fmt: skip
@@ -352,8 +353,7 @@ def validation_markdown(
         if res.get("unfitted"):
             lines += _unfitted_lines([r for r in rows if r["label"] in res["unfitted"]], res)
         if res.get("common"):
-            lines += _common_lines(rows, res["common"], {**res["held_out"], **res["unfitted"]}
-                                   if res.get("unfitted") else res["held_out"])
+            lines += _common_lines(rows, res["common"])
     return "\n".join(lines)
 
 
@@ -381,8 +381,7 @@ def _unfitted_lines(rows: Sequence[Mapping[str, Any]], res: Mapping[str, Any]) -
     return lines + [""]
 
 
-def _common_lines(rows: Sequence[Mapping[str, Any]], common: Mapping[str, Any],
-                  predicted: Mapping[str, float]) -> list[str]:
+def _common_lines(rows: Sequence[Mapping[str, Any]], common: Mapping[str, Any]) -> list[str]:
     tasks = sorted({t for t, _, _ in common["trials"]})
     seeds = sorted({s for _, _, s in common["trials"]})
     instances = sorted({i for _, i, _ in common["trials"]})
@@ -400,7 +399,7 @@ def _common_lines(rows: Sequence[Mapping[str, Any]], common: Mapping[str, Any],
         lines.append("| " + " | ".join([
             label, "yes" if common["fitted"][label] else "no",
             f"{round(success * len(common['trials']))} of {len(common['trials'])}",
-            f"{100 * predicted[label]:.0f}%",
+            f"{100 * common['predicted'][label]:.0f}%",
             *("–" if r[k] is None else f"{r[k]:.4g}" for k in ("ssim", "lpips", "fvd")),
         ]) + " |")  # fmt: skip
     if common["missing"]:
