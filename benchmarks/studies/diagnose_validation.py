@@ -143,6 +143,7 @@ def common_validation(
     its success there, its held-out prediction (``predicted``) and the Spearman of each
     predictor with that success; the others listed with how many of the trials they lack."""
     on = [r for r in rows if all(k in trials[r["label"]] for k in keys)]
+    scored = {r["label"] for r in on}
     models = [{**r, "success": sum(trials[r["label"]][k] for k in keys) / len(keys),
                "trials": len(keys)} for r in on]  # fmt: skip
     return {
@@ -152,7 +153,7 @@ def common_validation(
         "predicted": {m["label"]: predicted[m["label"]] for m in models},
         "fitted": {m["label"]: m["fit"] for m in models},
         "missing": {r["label"]: sum(k not in trials[r["label"]] for k in keys)
-                    for r in rows if r not in on},  # fmt: skip
+                    for r in rows if r["label"] not in scored},  # fmt: skip
         "spearman": _spearman_table(models, [predicted[m["label"]] for m in models]),
     }
 
@@ -457,8 +458,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     for entry in entries:
         report = diagnose_report(entry, args.out)
         reports.append(report)
-        trials[entry["label"]] = control_trials(entry["control"], entry["env"])
-        success, count = control_success(entry["control"], entry["env"])
+        found = trials[entry["label"]] = control_trials(entry["control"], entry["env"])
+        success, count = sum(found.values()) / len(found), len(found)
         rows.append({
             "label": entry["label"], "env": entry["env"], "fit": bool(entry.get("fit", True)),
             "features": features(report), "success": success, "trials": count,

@@ -217,27 +217,32 @@ def test_oracle_rates_pool_the_shipped_table_of_the_budget():
         dv.oracle_rates(123)
 
 
+def _write_model(root, label, q, outcomes):
+    """A diagnose report of quality ``q`` under ``root/out/reports`` and a control run of
+    ``outcomes`` ({(instance, seed): solved} on push_red); returns the model list entry."""
+    report = _report(1.0 + 0.6 * q, q, 51 - 50 * q, q, 3 * q, agree=0.7 * q)
+    (root / "out" / "reports").mkdir(parents=True, exist_ok=True)
+    (root / "out" / "reports" / f"{label}.json").write_text(json.dumps(report))
+    run = root / "runs" / label
+    run.mkdir(parents=True)
+    (run / "trials.jsonl").write_text("".join(
+        json.dumps({"task": "robodesk/push_red", "instance": i, "seed": s, "success": ok}) + "\n"
+        for (i, s), ok in outcomes.items()))  # fmt: skip
+    return {"label": label, "env": "robodesk", "model": "unused", "control": [str(run)]}
+
+
 def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path):
     rows, success = _synthetic(6)
     entries = []
     for k, q in enumerate(np.linspace(0, 1, 6)):
         label = f"m{k}"
-        report = _report(1.0 + 0.6 * q, q, 51 - 50 * q, q, 3 * q, agree=0.7 * q)
-        (tmp_path / "out" / "reports").mkdir(parents=True, exist_ok=True)
-        (tmp_path / "out" / "reports" / f"{label}.json").write_text(json.dumps(report))
-        run = tmp_path / "runs" / label
-        run.mkdir(parents=True)
         solved = round(10 * success[k])
-        with (run / "trials.jsonl").open("w") as f:
-            for t in range(10):
-                f.write(json.dumps({"task": "robodesk/push_red", "instance": t, "seed": 0,
-                                    "success": t < solved}) + "\n")
+        entry = _write_model(tmp_path, label, q, {(t, 0): t < solved for t in range(10)})
         metrics = tmp_path / "runs" / f"{label}.json"
         # SSIM unrelated to success; FVD falls as success rises.
         metrics.write_text(json.dumps({"metrics": {"ssim": [0.5, 0.9, 0.6, 0.8, 0.7, 0.55][k],
                                                    "fvd": 500 - 50 * k}}))  # fmt: skip
-        entries.append({"label": label, "env": "robodesk", "model": "unused",
-                        "control": [str(run)], "metrics": str(metrics)})  # fmt: skip
+        entries.append({**entry, "metrics": str(metrics)})
     models = tmp_path / "models.json"
     models.write_text(json.dumps({"models": entries}))
     asset = tmp_path / "asset.json"
@@ -258,20 +263,6 @@ def test_validation_script_fits_held_out_and_compares_with_the_metrics(tmp_path)
     page = (tmp_path / "out" / "validation.md").read_text()
     assert "| predicted (held out) | +0.94 | 6 |" in page
     assert "| oracle_agreement alone | +1.00 | 6 |" in page  # each measure, nothing fitted
-
-
-def _write_model(root, label, q, outcomes):
-    """A diagnose report of quality ``q`` under ``root/out/reports`` and a control run of
-    ``outcomes`` ({(instance, seed): solved} on push_red); returns the model list entry."""
-    report = _report(1.0 + 0.6 * q, q, 51 - 50 * q, q, 3 * q, agree=0.7 * q)
-    (root / "out" / "reports").mkdir(parents=True, exist_ok=True)
-    (root / "out" / "reports" / f"{label}.json").write_text(json.dumps(report))
-    run = root / "runs" / label
-    run.mkdir(parents=True)
-    (run / "trials.jsonl").write_text("".join(
-        json.dumps({"task": "robodesk/push_red", "instance": i, "seed": s, "success": ok}) + "\n"
-        for (i, s), ok in outcomes.items()))  # fmt: skip
-    return {"label": label, "env": "robodesk", "model": "unused", "control": [str(run)]}
 
 
 def test_models_of_another_protocol_are_predicted_not_fitted_and_all_meet_on_common_trials(
