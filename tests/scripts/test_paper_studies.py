@@ -68,6 +68,22 @@ def test_the_loss_variants_are_planned_with_their_metrics_beside(tmp_path):
         losses.main(["--column", f"a={SVG}", "--column", f"a={FITVID}", *_common(out)])
 
 
+def test_the_tabletop_half_plans_the_zoos_tabletop_variants_on_the_four_pushes(tmp_path):
+    tasks, variants = losses.ENVS["tabletop"]
+    assert tasks == ("tabletop/push_large_cube", "tabletop/push_small_cube",
+                     "tabletop/push_cylinder", "tabletop/push_sphere")
+    assert list(variants) == list(losses.VARIANTS)
+    assert variants["fitvid-lpips10"] == "zoo:fitvid-tabletop-lpips10"
+    assert losses.ENVS["robodesk"] == (losses.TASKS, losses.VARIANTS)
+    out = tmp_path / "t1t"
+    losses.main(["--env", "tabletop", "--only", "svg-lpips1", *_common(out)])
+    (line,) = (out / "runs" / "svg-lpips1" / "trials.jsonl").read_text().splitlines()
+    record = json.loads(line)
+    assert record["error"] is None and record["task"] == "tabletop/push_sphere"
+    assert record["model"]["zoo"]["name"] == "svg_prime-tabletop-lpips1"
+    assert (out / "losses.md").read_text().startswith("# Table 1 (tabletop): losses")
+
+
 def test_scaling_draws_a_curve_per_family_over_x(tmp_path, capsys):
     with pytest.raises(ValueError, match="X must be a number"):
         scaling.columns([("svg", "a", SVG, "many")])
