@@ -67,7 +67,7 @@ def test_prints_a_verdict_per_measure_and_writes_the_report(data, tmp_path, caps
         "candidate in the model's top 10% on 0 -> the model's ranking of the candidates is not "
         "the simulator's: its favourites are not what would happen"
     )
-    assert printed[7] == f"predicted control score: 9% success ({TABLETOP_PREDICTOR})"
+    assert printed[7] == f"predicted control score: 8% success ({TABLETOP_PREDICTOR})"
     assert printed[-1] == f"wrote {out}"
     # The measurements waited in report.partial.json while it ran; the report replaces them.
     assert sorted(p.name for p in out.parent.iterdir() if "report" in p.name) == ["report.json"]
