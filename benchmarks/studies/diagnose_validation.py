@@ -125,7 +125,11 @@ def control_trials(run_dirs: Sequence[str], env: str) -> dict[TrialKey, bool]:
 
 def control_success(run_dirs: Sequence[str], env: str) -> tuple[float, int]:
     """Success fraction and trial count over the ``env`` trials of the run directories."""
-    trials = control_trials(run_dirs, env)
+    return success_of(control_trials(run_dirs, env))
+
+
+def success_of(trials: Mapping[TrialKey, bool]) -> tuple[float, int]:
+    """Success fraction and count of :func:`control_trials`' outcomes."""
     return sum(trials.values()) / len(trials), len(trials)
 
 
@@ -458,8 +462,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     for entry in entries:
         report = diagnose_report(entry, args.out)
         reports.append(report)
-        found = trials[entry["label"]] = control_trials(entry["control"], entry["env"])
-        success, count = sum(found.values()) / len(found), len(found)
+        trials[entry["label"]] = control_trials(entry["control"], entry["env"])
+        success, count = success_of(trials[entry["label"]])
         rows.append({
             "label": entry["label"], "env": entry["env"], "fit": bool(entry.get("fit", True)),
             "features": features(report), "success": success, "trials": count,
