@@ -4,9 +4,8 @@ A one-second control step is 500 physics steps of 2 ms. Each one needs the opera
 torques of the current state (two site Jacobians, the dense mass matrix, the OSC kernel) and
 MuJoCo's ``mj_step1``/``mj_step2`` around them. Made from Python, those calls and their small
 arrays cost a third again as much as the physics (docs/measurements.md), so :func:`run_substeps`
-makes every call from a numba-compiled loop: MuJoCo's C functions are called by symbol, bound
-with ``llvmlite`` to the shared library the ``mujoco`` package has loaded, with the model's and
-data's raw addresses (``MjModel._address``, ``MjData._address``). The arithmetic
+makes every call from a numba-compiled loop, MuJoCo's C functions called by symbol
+(:mod:`vp2.envs._mujoco_c`) with the model's and data's raw addresses. The arithmetic
 is unchanged -- the same C functions in the same order, the same :func:`osc_torques` -- so
 states are bit-identical to stepping through the bindings (``tests/envs/test_tabletop.py``).
 
@@ -16,48 +15,18 @@ step several environments at once.
 
 from __future__ import annotations
 
-import ctypes
-import os
-
-import llvmlite.binding as llvm
-import mujoco
 import numba
 import numpy as np
 from numba import types
 
+from vp2.envs._mujoco_c import P as _P
+from vp2.envs._mujoco_c import external
 from vp2.envs._osc_kernel import osc_torques
 
-
-def _load_mujoco() -> ctypes.CDLL:
-    """The MuJoCo shared library the ``mujoco`` package uses (already loaded: one instance)."""
-    folder = os.path.dirname(mujoco.__file__)
-    name = f"libmujoco.so.{mujoco.__version__}"
-    path = os.path.join(folder, name)
-    if not os.path.exists(path):
-        candidates = sorted(f for f in os.listdir(folder) if f.startswith("libmujoco"))
-        if not candidates:
-            raise ImportError(
-                f"the mujoco package in {folder} ships no libmujoco shared library; "
-                "reinstall it with `pip install mujoco==3.8.0`"
-            )
-        path = os.path.join(folder, candidates[0])
-    return ctypes.CDLL(path)
-
-
-def _external(lib: ctypes.CDLL, name: str, *args: types.Type) -> types.ExternalFunction:
-    """A C function of ``lib`` that compiled code calls by symbol name (so numba can cache the
-    code that calls it: the address is bound when the cache is loaded, not baked in)."""
-    llvm.add_symbol(name, ctypes.cast(getattr(lib, name), ctypes.c_void_p).value)
-    return types.ExternalFunction(name, types.void(*args))
-
-
-_LIB = _load_mujoco()
-# Pointers travel as 64-bit unsigned integers (the raw addresses of mjModel, mjData and arrays).
-_P = types.uintp
-_mj_step1 = _external(_LIB, "mj_step1", _P, _P)
-_mj_step2 = _external(_LIB, "mj_step2", _P, _P)
-_mj_jacSite = _external(_LIB, "mj_jacSite", _P, _P, _P, _P, types.intc)
-_mj_fullM = _external(_LIB, "mj_fullM", _P, _P, _P)
+_mj_step1 = external("mj_step1", types.void, _P, _P)
+_mj_step2 = external("mj_step2", types.void, _P, _P)
+_mj_jacSite = external("mj_jacSite", types.void, _P, _P, _P, _P, types.intc)
+_mj_fullM = external("mj_fullM", types.void, _P, _P, _P)
 
 
 @numba.njit(nogil=True, fastmath=False, cache=True)
