@@ -10,7 +10,13 @@ Usage::
 * (a) ``RoboDeskEnv.step`` with its 64x64 observation vs ``robodesk.RoboDesk.step`` with its
   own observation (the package renders with a fresh dm_control camera per frame);
 * (b) both without rendering (``observation_size=None`` / the package's ``_get_obs`` replaced);
-* (c) the floor: 500 raw ``mujoco.mj_step`` calls (one env step is 50 x 10 physics steps).
+* (c) the floor: 500 raw ``mujoco.mj_step`` calls (one env step is 50 x 10 physics steps);
+* (d) our step without rendering through MuJoCo's Python bindings, one call per physics step
+  and IK iteration (``RoboDeskEnv._simulate_python``), against (b), the compiled step.
+
+``oracle`` times one simulator-oracle planning step on push_red's instance #0 (``--samples``
+candidates, in this process), the compiled step against the Python-bindings step, alternating,
+and checks that both choose the same action to the last bit.
 
 ``render`` draws varied states (every task, the noisy scripted policies) and renders each with
 MuJoCo's full quality (:meth:`RenderSpec.full_quality`) and with candidate quality settings,
@@ -61,12 +67,13 @@ def speed(args: argparse.Namespace) -> None:
     task = "push_red"
     ours = RoboDeskEnv(task, seed=0, observation_size=64)
     ours_blind = RoboDeskEnv(task, seed=0, observation_size=None)
+    ours_python = RoboDeskEnv(task, seed=0, observation_size=None)
     package = common.robodesk_package(task)
     package_blind = _blind_package(task)
     rng = np.random.default_rng(0)
     ours.reset(seed=0)
     start = ours.get_state()
-    for env in (ours_blind,):
+    for env in (ours_blind, ours_python):
         env.reset_to(start)
     for p in (package, package_blind):
         p.reset()
@@ -78,7 +85,7 @@ def speed(args: argparse.Namespace) -> None:
         mujoco.mj_step(model, data, 500)
 
     timers: dict[str, list[float]] = {
-        k: [] for k in ("a_ours", "a_package", "b_ours", "b_package", "c_raw")
+        k: [] for k in ("a_ours", "a_package", "b_ours", "b_package", "c_raw", "d_python")
     }
     ours.step(np.zeros(5))  # warm up GL contexts and caches
     package.step(np.zeros(5))
@@ -91,6 +98,7 @@ def speed(args: argparse.Namespace) -> None:
             "b_ours": ours_blind.step,
             "b_package": package_blind.step,
             "c_raw": lambda a: raw(),
+            "d_python": lambda a: ours_python._simulate_python(ours_python.check_action(a), None),
         }
         for name, call in calls.items():
             t = time.perf_counter()
@@ -112,6 +120,11 @@ def speed(args: argparse.Namespace) -> None:
     print(f"(a) with 64x64 observation: package / ours = {med['a_package'] / med['a_ours']:.2f}x")
     print(f"(b) without rendering:      package / ours = {med['b_package'] / med['b_ours']:.2f}x")
     print(f"(c) ours without rendering / 500 raw mj_step = {med['b_ours'] / med['c_raw']:.2f}x")
+    print(
+        f"(d) ours through the Python bindings / compiled = {med['d_python'] / med['b_ours']:.2f}x"
+    )
+    d = ours_python.get_state() - ours_blind.get_state()
+    print(f"# check: the two paths' states after {args.steps} steps differ by {np.abs(d).max()}")
     print(f"# check: package image vs ours at full quality, same state: MAE {check:.2f}/255")
 
 
@@ -202,6 +215,38 @@ def render(args: argparse.Namespace) -> None:
     print(f"# chosen spec: {RENDER_SPEC}")
 
 
+def oracle(args: argparse.Namespace) -> None:
+    from vp2.models.simulator import SimulatorModel
+
+    _header("RoboDesk oracle planning step: compiled env step vs the Python-bindings step")
+    step = common.suite_planning_step("robodesk/push_red", SimulatorModel, args.samples)
+    compiled = RoboDeskEnv._simulate
+
+    def python_path(self, action):
+        return self._simulate_python(action, self._dense_fn if self.track_dense_reward else None)
+
+    times: dict[str, list[float]] = {"compiled": [], "python": []}
+    actions: dict[str, np.ndarray] = {}
+    step()  # warm up (environments, renderer, classifier)
+    for _ in range(args.repeats):
+        for name, impl in (("compiled", compiled), ("python", python_path)):
+            RoboDeskEnv._simulate = impl
+            try:
+                t = time.perf_counter()
+                action, _ = step()
+                times[name].append(time.perf_counter() - t)
+            finally:
+                RoboDeskEnv._simulate = compiled
+            actions[name] = np.asarray(action)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    print(f"# {args.samples} samples, {args.repeats} alternating pairs, seconds per planning step")
+    for k, v in times.items():
+        print(f"{k:9s} median {med[k]:7.2f}   runs {', '.join(f'{x:.2f}' for x in v)}")
+    ratios = [c / p for c, p in zip(times["compiled"], times["python"], strict=True)]
+    print(f"compiled / python: {statistics.median(ratios):.2f}x (median of the pairs' ratios)")
+    print(f"# same action: {np.array_equal(actions['compiled'], actions['python'])}")
+
+
 def main() -> None:
     parser = common.argument_parser(__spec__.name, __doc__, full_doc=True)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -211,6 +256,10 @@ def main() -> None:
     p = sub.add_parser("render", help="fidelity and cost of render quality settings")
     p.add_argument("--episodes", type=int, default=2, help="noisy scripted episodes per task")
     p.set_defaults(func=render)
+    p = sub.add_parser("oracle", help="an oracle planning step: compiled vs Python-bindings step")
+    p.add_argument("--samples", type=int, default=20)
+    p.add_argument("--repeats", type=int, default=3)
+    p.set_defaults(func=oracle)
     args = parser.parse_args()
     args.func(args)
 

@@ -78,6 +78,9 @@ class SitePositionIK:
             dofs.append(int(model.jnt_dofadr[jid]))
             qadrs.append(int(model.jnt_qposadr[jid]))
         self._qadrs = np.asarray(qadrs)
+        #: The dofs and the ``qpos`` addresses of the IK's joints, in order (int64).
+        self.dofs = np.asarray(dofs, dtype=np.int64)
+        self.qpos_addresses = np.asarray(qadrs, dtype=np.int64)
         self.tol = tol
         self.regularization_threshold = regularization_threshold
         self.regularization_strength = regularization_strength
@@ -140,7 +143,7 @@ class SitePositionIK:
                 jj[0, 0] += self.regularization_strength
                 jj[1, 1] += self.regularization_strength
                 jj[2, 2] += self.regularization_strength
-            _chol_factor(jj, _MINDIAG)
+            _chol_factor(jj, MINDIAG)
             _chol_solve(y, jj, err)
             _mul_mat_t_vec(update, jac_joints, y)
             update_norm = _norm(update)
@@ -177,7 +180,7 @@ def nullspace_step(
     if regularization_strength > 0:
         for i in range(rows):
             jj[i, i] += regularization_strength
-    _chol_factor(jj, _MINDIAG)
+    _chol_factor(jj, MINDIAG)
     y = np.empty(rows)
     _chol_solve(y, jj, np.ascontiguousarray(delta, dtype=np.float64))
     update = np.empty(cols)
@@ -198,7 +201,7 @@ _chol_factor, _chol_solve = mujoco.mju_cholFactor, mujoco.mju_cholSolve
 #: Smallest pivot of the Cholesky factorisation (MuJoCo's mjMINVAL): a singular J J' (an arm
 #: singularity without regularisation) gives a large but finite step, which the update-norm
 #: clamp then limits.
-_MINDIAG = mujoco.mjMINVAL
+MINDIAG = mujoco.mjMINVAL
 
 
 class _NumpyWithMujocoNorm:

@@ -37,7 +37,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from vp2.envs._ik import MINDIAG as IK_MINDIAG
 from vp2.envs._ik import SitePositionIK
+from vp2.envs._robodesk_kernel import simulate_step
 from vp2.envs._robodesk_model import RENDER_SPEC, load_model, load_render_model
 from vp2.envs.base import Env
 from vp2.envs.rendering import Renderer
@@ -134,9 +136,24 @@ class RoboDeskEnv(Env):
         self._qfrc_bias = self.data.qfrc_bias[:NUM_ROBOT_JOINTS]
         self._ctrl = self.data.ctrl[:NUM_ROBOT_JOINTS]
         self._target = np.empty(NUM_ROBOT_JOINTS)
+        self._kernel = self._kernel_arguments()
         self._renderer: Renderer | None = None
         self._warnings_seen = self._warning_count()
         self.reset()
+
+    def _kernel_arguments(self) -> tuple[Any, ...]:
+        """The leading arguments of :func:`simulate_step`: addresses, views, the IK's settings
+        and its scratch arrays (made once; the views follow the data)."""
+        ik, m = self._ik, self.model
+        n = len(IK_JOINTS)
+        return (
+            m._address, self.data._address, ik.data._address,
+            self.data.qpos, self.data.site_xpos, ik.data.qpos, ik.data.site_xpos, ik.site_id,
+            ik.dofs, ik.qpos_addresses, ik.tol, ik.regularization_threshold,
+            ik.regularization_strength, ik.max_update_norm, ik.progress_thresh, ik.max_steps,
+            IK_MINDIAG, np.empty((3, m.nv)), np.empty((3, n)), np.empty((3, 3)), np.empty(3),
+            np.empty(3), np.empty(n), self._qfrc_applied, self._qfrc_bias, self._ctrl,
+        )  # fmt: skip
 
     # ---- privileged state (for scripted policies and tests) --------------------------------
     def _id(self, kind: mujoco.mjtObj, name: str) -> int:
@@ -264,19 +281,41 @@ class RoboDeskEnv(Env):
         """The package's ``RoboDesk.step`` dynamics, one env step = 50 repeats.
 
         Returns the dense reward summed over the repeats if ``track_dense_reward``, else None.
+        Without the dense reward the step runs in compiled code
+        (:func:`vp2.envs._robodesk_kernel.simulate_step`), bit-identical to
+        :meth:`_simulate_python`, which the dense reward (a Python function per repeat) needs.
         """
-        dense_fn = self._dense_fn if self.track_dense_reward else None
+        if self.track_dense_reward:
+            return self._simulate_python(action, self._dense_fn)
+        wrist_low, wrist_high, wrist_delta, gripper = self._wrist_and_gripper(action)
+        self._ik.last_steps = simulate_step(
+            *self._kernel, action[0:3] * END_EFFECTOR_SCALE, wrist_delta, wrist_low, wrist_high, gripper,
+            ACTION_REPEAT, PHYSICS_STEPS_PER_REPEAT, NUM_ROBOT_JOINTS,
+        )  # fmt: skip
+        self._check_warnings()
+        return None
+
+    def _wrist_and_gripper(self, action: np.ndarray) -> tuple[float, float, float, float]:
+        """The wrist's range and target change and the gripper target of ``action``."""
+        # Same expressions as the package's _action_to_delta_joint, for the same rounding.
+        wrist_low, wrist_high = self._ctrlrange[6]
+        wrist_delta = WRIST_SCALE * ((((action[3] + 1) * (wrist_high - wrist_low)) / 2) + wrist_low)
+        grip_low, grip_high = self._ctrlrange[7]
+        gripper = (((action[4] + 1) * (grip_high - grip_low)) / 2) + grip_low
+        return float(wrist_low), float(wrist_high), float(wrist_delta), float(gripper)
+
+    def _simulate_python(
+        self, action: np.ndarray, dense_fn: Callable[[], float] | None
+    ) -> float | None:
+        """:meth:`_simulate` through MuJoCo's Python bindings, one call per physics step (the
+        reference the compiled step is tested against); sums ``dense_fn`` over the repeats."""
         dense_total = 0.0
         m, d, ik = self.model, self.data, self._ik
         qpos, ee, target = d.qpos, self._ee_xpos, self._target
         applied, bias, ctrl = self._qfrc_applied, self._qfrc_bias, self._ctrl
         step1, step2 = mujoco.mj_step1, mujoco.mj_step2
         delta = action[0:3] * END_EFFECTOR_SCALE
-        # Same expressions as the package's _action_to_delta_joint, for the same rounding.
-        wrist_low, wrist_high = self._ctrlrange[6]
-        wrist_delta = WRIST_SCALE * ((((action[3] + 1) * (wrist_high - wrist_low)) / 2) + wrist_low)
-        grip_low, grip_high = self._ctrlrange[7]
-        gripper = (((action[4] + 1) * (grip_high - grip_low)) / 2) + grip_low
+        wrist_low, wrist_high, wrist_delta, gripper = self._wrist_and_gripper(action)
         for _ in range(ACTION_REPEAT):
             solution = ik.solve(d, ee + delta)
             target[:6] = solution[:6]
