@@ -77,7 +77,6 @@ class SitePositionIK:
                 raise ValueError(f"joint {name!r} is not a hinge or slide joint")
             dofs.append(int(model.jnt_dofadr[jid]))
             qadrs.append(int(model.jnt_qposadr[jid]))
-        self._qadrs = np.asarray(qadrs)
         #: The dofs and the ``qpos`` addresses of the IK's joints, in order (int64).
         self.dofs = np.asarray(dofs, dtype=np.int64)
         self.qpos_addresses = np.asarray(qadrs, dtype=np.int64)
@@ -155,7 +154,7 @@ class SitePositionIK:
             if self._qpos_slice is not None:
                 self._qpos_slice += update
             else:
-                d.qpos[self._qadrs] += update
+                d.qpos[self.qpos_addresses] += update
             kinematics(m, d)
             com_pos(m, d)
             source, site_xpos = d, self._site_xpos

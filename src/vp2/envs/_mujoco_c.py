@@ -45,3 +45,9 @@ def external(name: str, result: types.Type, *args: types.Type) -> types.External
     """The C function ``name`` of MuJoCo's library, with its result and argument types."""
     llvm.add_symbol(name, ctypes.cast(getattr(LIB, name), ctypes.c_void_p).value)
     return types.ExternalFunction(name, result(*args))
+
+
+# The functions more than one compiled loop calls.
+mj_step1 = external("mj_step1", types.void, P, P)
+mj_step2 = external("mj_step2", types.void, P, P)
+mj_jacSite = external("mj_jacSite", types.void, P, P, P, P, types.intc)

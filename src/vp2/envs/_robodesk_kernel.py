@@ -22,12 +22,12 @@ from numba import types
 
 from vp2.envs._mujoco_c import P as _P
 from vp2.envs._mujoco_c import external
+from vp2.envs._mujoco_c import mj_jacSite as _mj_jacSite
+from vp2.envs._mujoco_c import mj_step1 as _mj_step1
+from vp2.envs._mujoco_c import mj_step2 as _mj_step2
 
-_mj_step1 = external("mj_step1", types.void, _P, _P)
-_mj_step2 = external("mj_step2", types.void, _P, _P)
 _mj_kinematics = external("mj_kinematics", types.void, _P, _P)
 _mj_comPos = external("mj_comPos", types.void, _P, _P)
-_mj_jacSite = external("mj_jacSite", types.void, _P, _P, _P, _P, types.intc)
 _mju_norm3 = external("mju_norm3", types.float64, _P)
 _mju_norm = external("mju_norm", types.float64, _P, types.intc)
 _mju_mulMatMatT = external(

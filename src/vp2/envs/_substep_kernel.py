@@ -21,11 +21,11 @@ from numba import types
 
 from vp2.envs._mujoco_c import P as _P
 from vp2.envs._mujoco_c import external
+from vp2.envs._mujoco_c import mj_jacSite as _mj_jacSite
+from vp2.envs._mujoco_c import mj_step1 as _mj_step1
+from vp2.envs._mujoco_c import mj_step2 as _mj_step2
 from vp2.envs._osc_kernel import osc_torques
 
-_mj_step1 = external("mj_step1", types.void, _P, _P)
-_mj_step2 = external("mj_step2", types.void, _P, _P)
-_mj_jacSite = external("mj_jacSite", types.void, _P, _P, _P, _P, types.intc)
 _mj_fullM = external("mj_fullM", types.void, _P, _P, _P)
 
 
