@@ -222,8 +222,8 @@ def oracle(args: argparse.Namespace) -> None:
     step = common.suite_planning_step("robodesk/push_red", SimulatorModel, args.samples)
     compiled = RoboDeskEnv._simulate
 
-    def python_path(self, action):
-        return self._simulate_python(action, self._dense_fn if self.track_dense_reward else None)
+    def python_path(self, action):  # the oracle never tracks the dense reward
+        return self._simulate_python(action, None)
 
     times: dict[str, list[float]] = {"compiled": [], "python": []}
     actions: dict[str, np.ndarray] = {}
