@@ -1,10 +1,8 @@
 """Replaying oracle trials against their records: a fresh 2-step trial of the runner, and
-records behind the shipped tables (``results/oracle``): per environment, the shortest successful
-trial with at least two planned steps among the records measured with the CPU-independent
-arithmetic (all the tabletop's; RoboDesk's of the tables in ``EXACT_ROBODESK_TABLES``), whole
-and exactly (the shortest, so that CI replays ~2 planning steps rather than 4); for an
-environment with none, its first record's first two steps within 1e-5 (records that predate
-that arithmetic)."""
+records behind the shipped tables (``results/oracle``, every one planned with the
+CPU-independent arithmetic): per environment, the shortest successful trial with at least two
+planned steps, whole and exactly (the shortest, so that CI replays ~2 planning steps rather
+than 4)."""
 
 from __future__ import annotations
 
@@ -59,19 +57,10 @@ def test_a_fresh_oracle_trial_replays_to_its_record(tmp_path, monkeypatch):
 #: Fewest actions of a trial replayed whole: the zero action and two planned steps, so that a
 #: planned step's end state is planned from again.
 MIN_ACTIONS = 3
-#: The shipped tables whose RoboDesk records were measured with the CPU-independent arithmetic
-#: (the classifier's exact inference): every shipped table's, all their RoboDesk rows measured again.
-EXACT_ROBODESK_TABLES = frozenset({"samples-50", "spec"})
-
-
-def _exact(record: dict, table: str) -> bool:
-    return record["task"].startswith("tabletop/") or table in EXACT_ROBODESK_TABLES
-
-
 def _replayed_records(root: Path = RESULTS) -> dict[str, tuple[dict, dict]]:
     """Per environment, the record the replay test replays from ``root/*/trials.jsonl``
     (default: results/oracle), with its table's meta.json: the shortest successful record
-    measured with the exact arithmetic with at least ``MIN_ACTIONS`` actions, at most
+    with at least ``MIN_ACTIONS`` actions, at most
     ``FAST_SAMPLES`` planner samples if one is (the first of equals, tables in name order);
     else the environment's first record."""
     first: dict[str, tuple[dict, dict]] = {}
@@ -83,7 +72,7 @@ def _replayed_records(root: Path = RESULTS) -> dict[str, tuple[dict, dict]]:
             env = record["task"].split("/")[0]
             first.setdefault(env, (meta, record))
             length = len(record["actions"])
-            if _exact(record, meta["name"]) and record["success"] and length >= MIN_ACTIONS:
+            if record["success"] and length >= MIN_ACTIONS:
                 rank = (record["num_samples"] > FAST_SAMPLES, length)
                 if env not in shortest or rank < shortest[env][0]:
                     shortest[env] = (rank, meta, record)
@@ -107,13 +96,8 @@ def test_the_committed_oracle_records_replay(env):
         f"results/oracle holds no {env} oracle record: the shipped tables' evidence is missing"
     )
     meta, record = found[env]
-    if _exact(record, meta["name"]):
-        # Measured with the CPU-independent arithmetic: the whole trial, to the last bit.
-        replay = replay_record(record, steps=len(record["actions"]), settings=meta["settings"])
-        assert record["success"] and replay.mismatch(atol=0.0) is None, (
-            f"the oracle moved since table {meta['name']!r} was measured: "
-            f"{replay.mismatch(atol=0.0)}")
-        return
-    replay = replay_record(record, settings=meta["settings"])
-    assert replay.mismatch() is None, (
-        f"the oracle moved since table {meta['name']!r} was measured: {replay.mismatch()}")
+    # Planned with the CPU-independent arithmetic: the whole trial, to the last bit.
+    replay = replay_record(record, steps=len(record["actions"]), settings=meta["settings"])
+    assert record["success"] and replay.mismatch(atol=0.0) is None, (
+        f"the oracle moved since table {meta['name']!r} was measured: "
+        f"{replay.mismatch(atol=0.0)}")
